@@ -1,0 +1,293 @@
+//! The mesh: f64 positions and polygon faces of any arity in flat CSR arrays.
+//!
+//! A [`Mesh`] is validated once, at construction ([`Mesh::new`]); algorithms
+//! trust it afterwards. Connectivity never changes: smoothing only moves
+//! vertices, so vertex and face order are those of the input.
+
+mod ring;
+mod topology;
+
+pub use ring::RingWalker;
+pub use topology::{Topology, VertexKind};
+
+use crate::error::MeshError;
+use glam::DVec3;
+
+/// Positions plus polygon faces, faces stored as CSR (`face_offsets`,
+/// `face_vertices`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mesh {
+    positions: Vec<DVec3>,
+    face_offsets: Vec<u32>,
+    face_vertices: Vec<u32>,
+}
+
+impl Mesh {
+    /// Builds a mesh from positions and CSR faces: face `f` has corners
+    /// `face_vertices[face_offsets[f]..face_offsets[f+1]]`.
+    ///
+    /// Errors when an offset array is malformed, a face has fewer than 3
+    /// corners, an index is out of range or a coordinate is not finite.
+    /// Faces with a repeated index or zero area are accepted (they are
+    /// counted as degenerate by [`Topology`]).
+    pub fn new(
+        positions: Vec<DVec3>,
+        face_offsets: Vec<u32>,
+        face_vertices: Vec<u32>,
+    ) -> Result<Self, MeshError> {
+        if positions.len() >= u32::MAX as usize {
+            return Err(MeshError::TooLarge {
+                what: "vertex",
+                count: positions.len(),
+                limit: u32::MAX as usize - 1,
+            });
+        }
+        if face_vertices.len() >= u32::MAX as usize {
+            return Err(MeshError::TooLarge {
+                what: "face corner",
+                count: face_vertices.len(),
+                limit: u32::MAX as usize - 1,
+            });
+        }
+        if face_offsets.first() != Some(&0) {
+            return Err(MeshError::InvalidOffsets("the first offset must be 0"));
+        }
+        if face_offsets.last().map(|&o| o as usize) != Some(face_vertices.len()) {
+            return Err(MeshError::InvalidOffsets(
+                "the last offset must equal the number of face corners",
+            ));
+        }
+        for (f, w) in face_offsets.windows(2).enumerate() {
+            if w[1] < w[0] {
+                return Err(MeshError::InvalidOffsets("offsets must not decrease"));
+            }
+            let arity = (w[1] - w[0]) as usize;
+            if arity < 3 {
+                return Err(MeshError::FaceTooSmall { face: f, arity });
+            }
+        }
+        let n = positions.len();
+        for (f, w) in face_offsets.windows(2).enumerate() {
+            for &i in &face_vertices[w[0] as usize..w[1] as usize] {
+                if i as usize >= n {
+                    return Err(MeshError::IndexOutOfRange {
+                        face: f,
+                        index: i as u64,
+                        num_vertices: n,
+                    });
+                }
+            }
+        }
+        if let Some(v) = positions.iter().position(|p| !p.is_finite()) {
+            return Err(MeshError::NonFinitePosition { vertex: v });
+        }
+        Ok(Mesh {
+            positions,
+            face_offsets,
+            face_vertices,
+        })
+    }
+
+    /// Builds a mesh from a list of polygons (convenience for tests and
+    /// generators).
+    pub fn from_polygons<F: AsRef<[u32]>>(
+        positions: Vec<DVec3>,
+        faces: &[F],
+    ) -> Result<Self, MeshError> {
+        let mut offsets = Vec::with_capacity(faces.len() + 1);
+        let mut corners = Vec::new();
+        offsets.push(0u32);
+        for f in faces {
+            corners.extend_from_slice(f.as_ref());
+            let len = u32::try_from(corners.len()).map_err(|_| MeshError::TooLarge {
+                what: "face corner",
+                count: corners.len(),
+                limit: u32::MAX as usize - 1,
+            })?;
+            offsets.push(len);
+        }
+        Mesh::new(positions, offsets, corners)
+    }
+
+    /// Number of vertices.
+    pub fn num_vertices(&self) -> usize {
+        self.positions.len()
+    }
+
+    /// Number of faces.
+    pub fn num_faces(&self) -> usize {
+        self.face_offsets.len() - 1
+    }
+
+    /// All vertex positions, one entry per vertex.
+    pub fn positions(&self) -> &[DVec3] {
+        &self.positions
+    }
+
+    /// Replaces all positions; the new positions must be finite and one per
+    /// vertex (checked: a wrong length or a non-finite value is an error).
+    pub fn set_positions(&mut self, positions: Vec<DVec3>) -> Result<(), MeshError> {
+        if positions.len() != self.positions.len() {
+            return Err(MeshError::InvalidOffsets(
+                "replacement positions must have one entry per vertex",
+            ));
+        }
+        if let Some(v) = positions.iter().position(|p| !p.is_finite()) {
+            return Err(MeshError::NonFinitePosition { vertex: v });
+        }
+        self.positions = positions;
+        Ok(())
+    }
+
+    /// Mutable access to positions for algorithms that move vertices in
+    /// place. Callers keep every coordinate finite.
+    pub fn positions_mut(&mut self) -> &mut [DVec3] {
+        &mut self.positions
+    }
+
+    /// Corners of face `f`, in order. Panics if `f >= num_faces()`.
+    #[inline]
+    pub fn face(&self, f: usize) -> &[u32] {
+        let a = self.face_offsets[f] as usize;
+        let b = self.face_offsets[f + 1] as usize;
+        &self.face_vertices[a..b]
+    }
+
+    /// Iterator over all faces' corner lists, in face order.
+    pub fn faces(&self) -> impl ExactSizeIterator<Item = &[u32]> + '_ {
+        self.face_offsets
+            .windows(2)
+            .map(|w| &self.face_vertices[w[0] as usize..w[1] as usize])
+    }
+
+    /// Face CSR offsets (`num_faces() + 1` entries, starting at 0).
+    pub fn face_offsets(&self) -> &[u32] {
+        &self.face_offsets
+    }
+
+    /// Face CSR corner indices.
+    pub fn face_vertices(&self) -> &[u32] {
+        &self.face_vertices
+    }
+
+    /// Vector area of face `f`: `1/2 sum q_j x q_{j+1}` (its length is the
+    /// area for planar polygons; well defined for non-planar quads).
+    #[inline]
+    pub fn face_vector_area(&self, f: usize) -> DVec3 {
+        vector_area(self.face(f), &self.positions)
+    }
+
+    /// Mean edge length over all face edges (each face side counted once per
+    /// face), 0 for a mesh without faces.
+    pub fn mean_edge_length(&self) -> f64 {
+        mean_edge_length(self, &self.positions)
+    }
+
+    /// Enclosed volume by the divergence theorem (meaningful for closed,
+    /// consistently oriented meshes; positive when normals point outward).
+    pub fn signed_volume(&self) -> f64 {
+        signed_volume(self, &self.positions)
+    }
+}
+
+/// Vector area of the polygon `face` over `positions` (see
+/// [`Mesh::face_vector_area`]).
+#[inline]
+pub fn vector_area(face: &[u32], positions: &[DVec3]) -> DVec3 {
+    let n = face.len();
+    if n == 4 {
+        let d1 = positions[face[2] as usize] - positions[face[0] as usize];
+        let d2 = positions[face[3] as usize] - positions[face[1] as usize];
+        return 0.5 * d1.cross(d2);
+    }
+    // Fan from the first corner: translation invariant and exact for planar
+    // polygons.
+    let o = positions[face[0] as usize];
+    let mut s = DVec3::ZERO;
+    for j in 1..n.saturating_sub(1) {
+        let a = positions[face[j] as usize] - o;
+        let b = positions[face[j + 1] as usize] - o;
+        s += a.cross(b);
+    }
+    0.5 * s
+}
+
+/// Mean face-side length of `mesh` with alternative `positions`.
+pub fn mean_edge_length(mesh: &Mesh, positions: &[DVec3]) -> f64 {
+    let mut sum = 0.0;
+    let mut count = 0usize;
+    for face in mesh.faces() {
+        let n = face.len();
+        for j in 0..n {
+            let a = positions[face[j] as usize];
+            let b = positions[face[(j + 1) % n] as usize];
+            sum += a.distance(b);
+            count += 1;
+        }
+    }
+    if count == 0 { 0.0 } else { sum / count as f64 }
+}
+
+/// Signed enclosed volume of `mesh` with alternative `positions` (fan
+/// triangulation of each face, divergence theorem).
+pub fn signed_volume(mesh: &Mesh, positions: &[DVec3]) -> f64 {
+    let mut v = 0.0;
+    for face in mesh.faces() {
+        let o = positions[face[0] as usize];
+        for j in 1..face.len() - 1 {
+            let a = positions[face[j] as usize];
+            let b = positions[face[j + 1] as usize];
+            v += o.dot(a.cross(b));
+        }
+    }
+    v / 6.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unit_square() -> Mesh {
+        Mesh::from_polygons(
+            vec![
+                DVec3::new(0.0, 0.0, 0.0),
+                DVec3::new(1.0, 0.0, 0.0),
+                DVec3::new(1.0, 1.0, 0.0),
+                DVec3::new(0.0, 1.0, 0.0),
+            ],
+            &[[0u32, 1, 2, 3]],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn quad_vector_area_is_area_times_normal() {
+        let m = unit_square();
+        assert_eq!(m.face_vector_area(0), DVec3::new(0.0, 0.0, 1.0));
+        assert_eq!(m.mean_edge_length(), 1.0);
+    }
+
+    #[test]
+    fn construction_rejects_bad_input() {
+        let p = vec![DVec3::ZERO; 3];
+        assert!(matches!(
+            Mesh::from_polygons(p.clone(), &[[0u32, 1, 3]]),
+            Err(MeshError::IndexOutOfRange {
+                face: 0,
+                index: 3,
+                ..
+            })
+        ));
+        assert!(matches!(
+            Mesh::from_polygons(p.clone(), &[vec![0u32, 1]]),
+            Err(MeshError::FaceTooSmall { face: 0, arity: 2 })
+        ));
+        let mut q = p.clone();
+        q[1].y = f64::NAN;
+        assert!(matches!(
+            Mesh::from_polygons(q, &[[0u32, 1, 2]]),
+            Err(MeshError::NonFinitePosition { vertex: 1 })
+        ));
+        assert!(Mesh::new(p, vec![1, 3], vec![0, 1, 2]).is_err());
+    }
+}

@@ -1,0 +1,147 @@
+//! k-ring queries: `N_k(i)`, every vertex within `k` edges of `i` (not `i`).
+
+use super::Topology;
+
+/// Breadth-first ring walker with reusable scratch, so repeated queries
+/// allocate nothing once warmed up. One walker per thread.
+#[derive(Debug, Default, Clone)]
+pub struct RingWalker {
+    stamp: Vec<u32>,
+    generation: u32,
+    /// Vertices found so far, ring by ring (the centre is not included).
+    found: Vec<u32>,
+    /// `found[ring_starts[r]..ring_starts[r+1]]` is ring `r + 1`.
+    ring_starts: Vec<usize>,
+    centre: u32,
+}
+
+impl RingWalker {
+    /// A walker for meshes with `num_vertices` vertices.
+    pub fn new(num_vertices: usize) -> Self {
+        RingWalker {
+            stamp: vec![0; num_vertices],
+            ..Default::default()
+        }
+    }
+
+    /// Starts a walk at `centre`, forgetting the previous one.
+    pub fn start(&mut self, topo: &Topology, centre: usize) {
+        if self.stamp.len() < topo.num_vertices() {
+            self.stamp.resize(topo.num_vertices(), 0);
+        }
+        self.generation = self.generation.wrapping_add(1);
+        if self.generation == 0 {
+            self.stamp.iter_mut().for_each(|s| *s = 0);
+            self.generation = 1;
+        }
+        self.found.clear();
+        self.ring_starts.clear();
+        self.ring_starts.push(0);
+        self.centre = centre as u32;
+        self.stamp[centre] = self.generation;
+    }
+
+    /// Adds the next ring (vertices at exactly one more edge) and returns it;
+    /// empty when the component is exhausted.
+    pub fn grow(&mut self, topo: &Topology) -> &[u32] {
+        let g = self.generation;
+        let start = self.found.len();
+        let (frontier_a, frontier_b) = if self.ring_starts.len() == 1 {
+            (usize::MAX, usize::MAX)
+        } else {
+            (
+                self.ring_starts[self.ring_starts.len() - 2],
+                self.ring_starts[self.ring_starts.len() - 1],
+            )
+        };
+        if frontier_a == usize::MAX {
+            for &w in topo.neighbors(self.centre as usize) {
+                if self.stamp[w as usize] != g {
+                    self.stamp[w as usize] = g;
+                    self.found.push(w);
+                }
+            }
+        } else {
+            for idx in frontier_a..frontier_b {
+                let u = self.found[idx] as usize;
+                for &w in topo.neighbors(u) {
+                    if self.stamp[w as usize] != g {
+                        self.stamp[w as usize] = g;
+                        self.found.push(w);
+                    }
+                }
+            }
+        }
+        self.ring_starts.push(self.found.len());
+        &self.found[start..]
+    }
+
+    /// Drops the last grown ring (used when growth is rejected). Its
+    /// vertices stay marked, so growing again returns nothing new.
+    pub fn discard_last(&mut self) {
+        if self.ring_starts.len() > 1 {
+            let s = self.ring_starts[self.ring_starts.len() - 2];
+            self.found.truncate(s);
+            self.ring_starts.pop();
+        }
+    }
+
+    /// All vertices found so far (rings 1..=k), ring by ring.
+    pub fn found(&self) -> &[u32] {
+        &self.found
+    }
+
+    /// Number of complete rings walked.
+    pub fn rings(&self) -> usize {
+        self.ring_starts.len() - 1
+    }
+
+    /// Ring `r` (1-based) of the current walk.
+    pub fn ring(&self, r: usize) -> &[u32] {
+        &self.found[self.ring_starts[r - 1]..self.ring_starts[r]]
+    }
+
+    /// Collects `N_k(centre)` into the walker and returns it.
+    pub fn k_ring(&mut self, topo: &Topology, centre: usize, k: usize) -> &[u32] {
+        self.start(topo, centre);
+        for _ in 0..k {
+            if self.grow(topo).is_empty() {
+                break;
+            }
+        }
+        &self.found
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::Mesh;
+    use glam::DVec3;
+
+    #[test]
+    fn quad_grid_rings_have_4_then_12_vertices() {
+        let n = 6u32;
+        let mut p = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                p.push(DVec3::new(i as f64, j as f64, 0.0));
+            }
+        }
+        let mut f = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                let a = j * (n + 1) + i;
+                f.push([a, a + 1, a + n + 2, a + n + 1]);
+            }
+        }
+        let m = Mesh::from_polygons(p, &f).unwrap();
+        let t = Topology::build(&m);
+        let centre = (3 * (n + 1) + 3) as usize;
+        let mut w = RingWalker::new(m.num_vertices());
+        assert_eq!(w.k_ring(&t, centre, 1).len(), 4);
+        assert_eq!(w.k_ring(&t, centre, 2).len(), 12);
+        assert_eq!(w.ring(2).len(), 8);
+        assert!(!w.found().contains(&(centre as u32)));
+    }
+}

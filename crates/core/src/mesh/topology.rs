@@ -1,0 +1,407 @@
+//! Connectivity of a [`Mesh`] in flat CSR arrays: vertex→vertex,
+//! vertex→face and edge→face, plus boundary and non-manifold flags.
+//!
+//! Built once per mesh in `O(corners)` time (bucketing edges by their
+//! smaller end point, no global sort); connectivity never changes afterwards.
+
+use super::Mesh;
+use serde::Serialize;
+
+/// How a vertex sits in the surface.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VertexKind {
+    /// Every incident edge has exactly two faces and the faces form one fan.
+    Interior,
+    /// At least one incident edge has a single face (an open surface's rim).
+    Boundary,
+    /// An incident edge has more than two faces, or the incident faces form
+    /// several fans joined only at this vertex (a pinch).
+    NonManifold,
+    /// No face uses the vertex.
+    Isolated,
+}
+
+/// Vertex→vertex, vertex→face and edge→face adjacency of a mesh.
+#[derive(Debug, Clone)]
+pub struct Topology {
+    vv_offsets: Vec<u32>,
+    vv: Vec<u32>,
+    /// Edge index of each `vv` entry (parallel to `vv`).
+    vv_edge: Vec<u32>,
+    vf_offsets: Vec<u32>,
+    vf: Vec<u32>,
+    /// Unique undirected edges, `[lo, hi]` with `lo < hi`.
+    edges: Vec<[u32; 2]>,
+    ef_offsets: Vec<u32>,
+    ef: Vec<u32>,
+    kinds: Vec<VertexKind>,
+    degenerate_faces: usize,
+}
+
+impl Topology {
+    /// Builds the adjacency of `mesh`. Face sides joining a vertex to itself
+    /// (a repeated index) are not edges; such faces count as degenerate.
+    pub fn build(mesh: &Mesh) -> Topology {
+        let n = mesh.num_vertices();
+        // Half-edges bucketed by their smaller end point.
+        let mut bucket_count = vec![0u32; n + 1];
+        let mut degenerate_faces = 0usize;
+        for face in mesh.faces() {
+            let k = face.len();
+            let mut repeated = false;
+            for j in 0..k {
+                let a = face[j];
+                let b = face[(j + 1) % k];
+                if a == b {
+                    repeated = true;
+                    continue;
+                }
+                bucket_count[a.min(b) as usize + 1] += 1;
+            }
+            if repeated || has_repeated_corner(face) {
+                degenerate_faces += 1;
+            }
+        }
+        prefix_sum(&mut bucket_count);
+        let mut fill = bucket_count.clone();
+        let total = bucket_count[n] as usize;
+        let mut half: Vec<(u32, u32)> = vec![(0, 0); total]; // (hi, face)
+        for (f, face) in mesh.faces().enumerate() {
+            let k = face.len();
+            for j in 0..k {
+                let a = face[j];
+                let b = face[(j + 1) % k];
+                if a == b {
+                    continue;
+                }
+                let lo = a.min(b) as usize;
+                let slot = &mut fill[lo];
+                half[*slot as usize] = (a.max(b), f as u32);
+                *slot += 1;
+            }
+        }
+        // Unique edges with their (deduplicated) faces.
+        let mut edges = Vec::with_capacity(total / 2 + 1);
+        let mut ef_offsets = Vec::with_capacity(total / 2 + 2);
+        let mut ef = Vec::with_capacity(total);
+        ef_offsets.push(0u32);
+        for lo in 0..n {
+            let bucket = &mut half[bucket_count[lo] as usize..bucket_count[lo + 1] as usize];
+            bucket.sort_unstable();
+            let mut i = 0;
+            while i < bucket.len() {
+                let hi = bucket[i].0;
+                let mut last_face = u32::MAX;
+                while i < bucket.len() && bucket[i].0 == hi {
+                    if bucket[i].1 != last_face {
+                        ef.push(bucket[i].1);
+                        last_face = bucket[i].1;
+                    }
+                    i += 1;
+                }
+                edges.push([lo as u32, hi]);
+                ef_offsets.push(ef.len() as u32);
+            }
+        }
+        drop(half);
+        // Vertex -> vertex (with edge ids), sorted by neighbour within a vertex
+        // because edges are produced in (lo, hi) order.
+        let mut vv_offsets = vec![0u32; n + 1];
+        for e in &edges {
+            vv_offsets[e[0] as usize + 1] += 1;
+            vv_offsets[e[1] as usize + 1] += 1;
+        }
+        prefix_sum(&mut vv_offsets);
+        let mut fill = vv_offsets.clone();
+        let mut vv = vec![0u32; vv_offsets[n] as usize];
+        let mut vv_edge = vec![0u32; vv.len()];
+        // Entries where the vertex is `hi` come first (their `lo` is smaller).
+        for (ei, e) in edges.iter().enumerate() {
+            let s = &mut fill[e[1] as usize];
+            vv[*s as usize] = e[0];
+            vv_edge[*s as usize] = ei as u32;
+            *s += 1;
+        }
+        for (ei, e) in edges.iter().enumerate() {
+            let s = &mut fill[e[0] as usize];
+            vv[*s as usize] = e[1];
+            vv_edge[*s as usize] = ei as u32;
+            *s += 1;
+        }
+        // Vertex -> face, each face once per vertex, in face order.
+        let mut vf_offsets = vec![0u32; n + 1];
+        for face in mesh.faces() {
+            for (j, &v) in face.iter().enumerate() {
+                if !face[..j].contains(&v) {
+                    vf_offsets[v as usize + 1] += 1;
+                }
+            }
+        }
+        prefix_sum(&mut vf_offsets);
+        let mut fill = vf_offsets.clone();
+        let mut vf = vec![0u32; vf_offsets[n] as usize];
+        for (f, face) in mesh.faces().enumerate() {
+            for (j, &v) in face.iter().enumerate() {
+                if !face[..j].contains(&v) {
+                    let s = &mut fill[v as usize];
+                    vf[*s as usize] = f as u32;
+                    *s += 1;
+                }
+            }
+        }
+        let mut topo = Topology {
+            vv_offsets,
+            vv,
+            vv_edge,
+            vf_offsets,
+            vf,
+            edges,
+            ef_offsets,
+            ef,
+            kinds: Vec::new(),
+            degenerate_faces,
+        };
+        topo.kinds = (0..n).map(|v| topo.classify(mesh, v)).collect();
+        topo
+    }
+
+    fn classify(&self, mesh: &Mesh, v: usize) -> VertexKind {
+        let faces = self.vertex_faces(v);
+        if faces.is_empty() {
+            return VertexKind::Isolated;
+        }
+        let mut boundary = false;
+        for &e in self.vertex_edges(v) {
+            match self.edge_faces(e as usize).len() {
+                1 => boundary = true,
+                2 => {}
+                _ => return VertexKind::NonManifold,
+            }
+        }
+        // Count fans: faces around v joined through shared edges at v.
+        // Union-find over the (few) incident faces, on the stack when small.
+        let mut parent_small = [0u16; 32];
+        let mut parent_big = Vec::new();
+        let parent: &mut [u16] = if faces.len() <= 32 {
+            &mut parent_small[..faces.len()]
+        } else if faces.len() <= u16::MAX as usize {
+            parent_big.resize(faces.len(), 0);
+            &mut parent_big[..]
+        } else {
+            return VertexKind::NonManifold;
+        };
+        for (i, p) in parent.iter_mut().enumerate() {
+            *p = i as u16;
+        }
+        fn find(p: &mut [u16], mut i: usize) -> usize {
+            while p[i] as usize != i {
+                p[i] = p[p[i] as usize];
+                i = p[i] as usize;
+            }
+            i
+        }
+        let mut components = faces.len();
+        for &e in self.vertex_edges(v) {
+            let ef = self.edge_faces(e as usize);
+            if ef.len() == 2 {
+                let a = faces.iter().position(|&f| f == ef[0]);
+                let b = faces.iter().position(|&f| f == ef[1]);
+                if let (Some(a), Some(b)) = (a, b) {
+                    let (ra, rb) = (find(parent, a), find(parent, b));
+                    if ra != rb {
+                        parent[ra] = rb as u16;
+                        components -= 1;
+                    }
+                }
+            }
+        }
+        let _ = mesh;
+        if components > 1 {
+            VertexKind::NonManifold
+        } else if boundary {
+            VertexKind::Boundary
+        } else {
+            VertexKind::Interior
+        }
+    }
+
+    /// Number of vertices.
+    pub fn num_vertices(&self) -> usize {
+        self.kinds.len()
+    }
+
+    /// Neighbours of vertex `v` (one entry per edge), ascending.
+    #[inline]
+    pub fn neighbors(&self, v: usize) -> &[u32] {
+        &self.vv[self.vv_offsets[v] as usize..self.vv_offsets[v + 1] as usize]
+    }
+
+    /// Edge ids of vertex `v`'s edges, parallel to [`Topology::neighbors`].
+    #[inline]
+    pub fn vertex_edges(&self, v: usize) -> &[u32] {
+        &self.vv_edge[self.vv_offsets[v] as usize..self.vv_offsets[v + 1] as usize]
+    }
+
+    /// Faces using vertex `v`, each once, ascending.
+    #[inline]
+    pub fn vertex_faces(&self, v: usize) -> &[u32] {
+        &self.vf[self.vf_offsets[v] as usize..self.vf_offsets[v + 1] as usize]
+    }
+
+    /// All unique undirected edges, `[lo, hi]` with `lo < hi`.
+    pub fn edges(&self) -> &[[u32; 2]] {
+        &self.edges
+    }
+
+    /// Faces sharing edge `e`, each once, ascending.
+    #[inline]
+    pub fn edge_faces(&self, e: usize) -> &[u32] {
+        &self.ef[self.ef_offsets[e] as usize..self.ef_offsets[e + 1] as usize]
+    }
+
+    /// Kind of vertex `v`.
+    #[inline]
+    pub fn kind(&self, v: usize) -> VertexKind {
+        self.kinds[v]
+    }
+
+    /// Kinds of all vertices, one entry per vertex.
+    pub fn kinds(&self) -> &[VertexKind] {
+        &self.kinds
+    }
+
+    /// Edges with exactly one face.
+    pub fn num_boundary_edges(&self) -> usize {
+        (0..self.edges.len())
+            .filter(|&e| self.edge_faces(e).len() == 1)
+            .count()
+    }
+
+    /// Edges with more than two faces.
+    pub fn num_non_manifold_edges(&self) -> usize {
+        (0..self.edges.len())
+            .filter(|&e| self.edge_faces(e).len() > 2)
+            .count()
+    }
+
+    /// Largest number of faces sharing one edge (0 without edges).
+    pub fn max_faces_per_edge(&self) -> usize {
+        (0..self.edges.len())
+            .map(|e| self.edge_faces(e).len())
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// Faces with a repeated corner index.
+    pub fn num_degenerate_faces(&self) -> usize {
+        self.degenerate_faces
+    }
+
+    /// Number of vertices of the given kind.
+    pub fn count_kind(&self, kind: VertexKind) -> usize {
+        self.kinds.iter().filter(|&&k| k == kind).count()
+    }
+
+    /// Connected components of the vertex graph, not counting isolated
+    /// vertices.
+    pub fn num_components(&self) -> usize {
+        let n = self.num_vertices();
+        let mut parent: Vec<u32> = (0..n as u32).collect();
+        fn find(p: &mut [u32], mut i: usize) -> usize {
+            while p[i] as usize != i {
+                p[i] = p[p[i] as usize];
+                i = p[i] as usize;
+            }
+            i
+        }
+        let mut components = n - self.count_kind(VertexKind::Isolated);
+        for e in &self.edges {
+            let (a, b) = (
+                find(&mut parent, e[0] as usize),
+                find(&mut parent, e[1] as usize),
+            );
+            if a != b {
+                parent[a] = b as u32;
+                components -= 1;
+            }
+        }
+        components
+    }
+}
+
+fn has_repeated_corner(face: &[u32]) -> bool {
+    face.iter().enumerate().any(|(j, v)| face[..j].contains(v))
+}
+
+fn prefix_sum(a: &mut [u32]) {
+    for i in 1..a.len() {
+        a[i] += a[i - 1];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+
+    /// A 3x3 grid of quads (16 vertices), an open surface.
+    pub(crate) fn grid(n: u32) -> Mesh {
+        let mut p = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                p.push(DVec3::new(i as f64, j as f64, 0.0));
+            }
+        }
+        let mut f = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                let a = j * (n + 1) + i;
+                f.push([a, a + 1, a + n + 2, a + n + 1]);
+            }
+        }
+        Mesh::from_polygons(p, &f).unwrap()
+    }
+
+    #[test]
+    fn grid_adjacency() {
+        let m = grid(3);
+        let t = Topology::build(&m);
+        assert_eq!(t.edges().len(), 24);
+        assert_eq!(t.neighbors(5), &[1, 4, 6, 9]);
+        assert_eq!(t.vertex_faces(5), &[0, 1, 3, 4]);
+        assert_eq!(t.kind(5), VertexKind::Interior);
+        assert_eq!(t.kind(0), VertexKind::Boundary);
+        assert_eq!(t.num_boundary_edges(), 12);
+        assert_eq!(t.num_components(), 1);
+    }
+
+    #[test]
+    fn non_manifold_edge_and_pinch_and_isolated() {
+        // Three triangles on edge 0-1 (a fin), plus an isolated vertex 5.
+        let p = vec![DVec3::ZERO; 6];
+        let m = Mesh::from_polygons(p, &[[0u32, 1, 2], [1, 0, 3], [0, 1, 4]]).unwrap();
+        let t = Topology::build(&m);
+        assert_eq!(t.num_non_manifold_edges(), 1);
+        assert_eq!(t.max_faces_per_edge(), 3);
+        assert_eq!(t.kind(0), VertexKind::NonManifold);
+        assert_eq!(t.kind(2), VertexKind::Boundary);
+        assert_eq!(t.kind(5), VertexKind::Isolated);
+        // Two triangles sharing only vertex 0: a pinch.
+        let p = vec![DVec3::ZERO; 5];
+        let m = Mesh::from_polygons(p, &[[0u32, 1, 2], [0, 3, 4]]).unwrap();
+        let t = Topology::build(&m);
+        assert_eq!(t.kind(0), VertexKind::NonManifold);
+        assert_eq!(t.num_components(), 1);
+    }
+
+    #[test]
+    fn repeated_index_is_degenerate_not_an_edge() {
+        let p = vec![DVec3::ZERO; 3];
+        let m = Mesh::from_polygons(p, &[[0u32, 1, 1, 2]]).unwrap();
+        let t = Topology::build(&m);
+        assert_eq!(t.num_degenerate_faces(), 1);
+        assert_eq!(t.edges().len(), 3);
+        assert_eq!(t.vertex_faces(1), &[0]);
+    }
+}

@@ -1,0 +1,306 @@
+//! Smoothing parameters: one serde struct shared by the CLI (`--params
+//! FILE.json` and flags) and the HTTP API (JSON body or query string).
+//!
+//! Every default lives in exactly one place, the `Default` impls below; each
+//! field's doc comment states it, and `tests::defaults_are_pinned` pins it.
+//! Unknown fields are rejected when deserialising.
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// Which smoother to run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// Quadric fitting with curvature-adaptive neighbourhoods (Wang & Yu 2009).
+    #[default]
+    WangYu,
+    /// Taubin λ/μ smoothing (baseline).
+    Taubin,
+    /// Uniform Laplacian smoothing (baseline).
+    Laplacian,
+}
+
+/// What happens at boundary vertices (edges with a single face). Section 0
+/// of the algorithm notes leaves this open.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum BoundaryRule {
+    /// Boundary vertices never move (default): the rim of a cropped surface
+    /// stays exactly where the crop put it.
+    #[default]
+    Fixed,
+    /// Boundary vertices are fitted with their one-sided neighbourhood and
+    /// move along their normal only.
+    NormalOnly,
+}
+
+/// All parameters of a run. Defaults: `Params::default()`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Params {
+    /// Smoother. Default `wang-yu`.
+    pub method: Method,
+    /// Passes of initial smoothing with fixed 2-ring fits (section 2.2).
+    /// Default 2; range 0..=100.
+    pub initial_passes: u32,
+    /// Passes of adaptive smoothing (section 2.3). Default 12; range 0..=200.
+    pub adaptive_passes: u32,
+    /// Largest ring `k` an adaptive neighbourhood may grow to. Default 9;
+    /// range 2..=16.
+    pub k_max: u32,
+    /// Most neighbours used in one fit: larger rings are thinned to this many
+    /// well-spread points, so a fit's cost does not grow with `k`.
+    /// Default 40; range 6..=512.
+    pub max_fit_points: u32,
+    /// Flatness tolerance on `|H| l` (l = mean edge length), section 6.
+    /// Default 0.02; range 0..=10.
+    pub tolerance_h: f64,
+    /// Flatness tolerance on `|K| l^2`, section 6. Default 0.0005; range 0..=10.
+    pub tolerance_k: f64,
+    /// Ring growth stops when the standard deviation of `H l` over the
+    /// neighbourhood would exceed this bound (section 2.3). Default 0.1;
+    /// range 0..=100.
+    pub curvature_std_bound: f64,
+    /// What boundary vertices do. Default `fixed`.
+    pub boundary: BoundaryRule,
+    /// Restore the input's enclosed volume at the end by a uniform offset
+    /// along the vertex normals (closed meshes only). Default true.
+    pub preserve_volume: bool,
+    /// Mesh-quality fixes (section 2.4).
+    pub quality: QualityParams,
+    /// Parameters of the baseline methods.
+    pub baseline: BaselineParams,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Params {
+            method: Method::WangYu,
+            initial_passes: 2,
+            adaptive_passes: 12,
+            k_max: 9,
+            max_fit_points: 40,
+            tolerance_h: 0.02,
+            tolerance_k: 0.0005,
+            curvature_std_bound: 0.1,
+            boundary: BoundaryRule::Fixed,
+            preserve_volume: true,
+            quality: QualityParams::default(),
+            baseline: BaselineParams::default(),
+        }
+    }
+}
+
+/// Parameters of the quality-improvement stage (section 2.4).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct QualityParams {
+    /// Run the quality fixes. Default true.
+    pub enabled: bool,
+    /// An edge shorter than this fraction of the mean edge length is short.
+    /// Default 0.2; range 0..=1.
+    pub short_edge_fraction: f64,
+    /// A triangle-split angle below this (degrees) is sharp and triggers
+    /// angle-based smoothing. Default 20; range 0..=60.
+    pub sharp_angle_deg: f64,
+    /// Most sweeps of the sharp-angle fix. Default 10; range 0..=100.
+    pub max_sweeps: u32,
+}
+
+impl Default for QualityParams {
+    fn default() -> Self {
+        QualityParams {
+            enabled: true,
+            short_edge_fraction: 0.2,
+            sharp_angle_deg: 20.0,
+            max_sweeps: 10,
+        }
+    }
+}
+
+/// Parameters of the baseline smoothers (`method = taubin | laplacian`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct BaselineParams {
+    /// Iterations. Default 20; range 0..=10000.
+    pub iterations: u32,
+    /// Laplacian step λ (both methods). Default 0.5; range 0 < λ <= 1.
+    pub lambda: f64,
+    /// Taubin's inflating step μ. Default -0.53; range -1 <= μ < 0, |μ| > λ.
+    pub mu: f64,
+}
+
+impl Default for BaselineParams {
+    fn default() -> Self {
+        BaselineParams {
+            iterations: 20,
+            lambda: 0.5,
+            mu: -0.53,
+        }
+    }
+}
+
+/// A parameter out of its allowed range.
+#[derive(Debug, Error, Clone, PartialEq)]
+#[error("parameter `{field}` = {value} is out of range: allowed {allowed}")]
+pub struct ParamError {
+    /// Dotted field path, e.g. `quality.sharp_angle_deg`.
+    pub field: &'static str,
+    /// The rejected value, as text.
+    pub value: String,
+    /// The allowed range, as text.
+    pub allowed: &'static str,
+}
+
+impl ParamError {
+    /// Stable snake_case code.
+    pub fn code(&self) -> &'static str {
+        "parameter_out_of_range"
+    }
+}
+
+fn check_u32(
+    field: &'static str,
+    v: u32,
+    lo: u32,
+    hi: u32,
+    allowed: &'static str,
+) -> Result<(), ParamError> {
+    if v < lo || v > hi {
+        return Err(ParamError {
+            field,
+            value: v.to_string(),
+            allowed,
+        });
+    }
+    Ok(())
+}
+
+fn check_f64(
+    field: &'static str,
+    v: f64,
+    ok: bool,
+    allowed: &'static str,
+) -> Result<(), ParamError> {
+    if !v.is_finite() || !ok {
+        return Err(ParamError {
+            field,
+            value: v.to_string(),
+            allowed,
+        });
+    }
+    Ok(())
+}
+
+impl Params {
+    /// Checks every range; the error names the field and the allowed range.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        check_u32("initial_passes", self.initial_passes, 0, 100, "0..=100")?;
+        check_u32("adaptive_passes", self.adaptive_passes, 0, 200, "0..=200")?;
+        check_u32("k_max", self.k_max, 2, 16, "2..=16")?;
+        check_u32("max_fit_points", self.max_fit_points, 6, 512, "6..=512")?;
+        let t = self.tolerance_h;
+        check_f64("tolerance_h", t, (0.0..=10.0).contains(&t), "0..=10")?;
+        let t = self.tolerance_k;
+        check_f64("tolerance_k", t, (0.0..=10.0).contains(&t), "0..=10")?;
+        let s = self.curvature_std_bound;
+        check_f64(
+            "curvature_std_bound",
+            s,
+            (0.0..=100.0).contains(&s),
+            "0..=100",
+        )?;
+        let q = &self.quality;
+        let f = q.short_edge_fraction;
+        check_f64(
+            "quality.short_edge_fraction",
+            f,
+            (0.0..=1.0).contains(&f),
+            "0..=1",
+        )?;
+        let a = q.sharp_angle_deg;
+        check_f64(
+            "quality.sharp_angle_deg",
+            a,
+            (0.0..=60.0).contains(&a),
+            "0..=60",
+        )?;
+        check_u32("quality.max_sweeps", q.max_sweeps, 0, 100, "0..=100")?;
+        let b = &self.baseline;
+        check_u32("baseline.iterations", b.iterations, 0, 10_000, "0..=10000")?;
+        let l = b.lambda;
+        check_f64("baseline.lambda", l, l > 0.0 && l <= 1.0, "0 < lambda <= 1")?;
+        let m = b.mu;
+        check_f64(
+            "baseline.mu",
+            m,
+            (-1.0..0.0).contains(&m) && -m > l,
+            "-1 <= mu < 0 and |mu| > lambda",
+        )?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_pinned() {
+        let p = Params::default();
+        assert_eq!(p.method, Method::WangYu);
+        assert_eq!(p.initial_passes, 2);
+        assert_eq!(p.adaptive_passes, 12);
+        assert_eq!(p.k_max, 9);
+        assert_eq!(p.max_fit_points, 40);
+        assert_eq!(p.tolerance_h, 0.02);
+        assert_eq!(p.tolerance_k, 0.0005);
+        assert_eq!(p.curvature_std_bound, 0.1);
+        assert_eq!(p.boundary, BoundaryRule::Fixed);
+        assert!(p.preserve_volume);
+        assert_eq!(
+            p.quality,
+            QualityParams {
+                enabled: true,
+                short_edge_fraction: 0.2,
+                sharp_angle_deg: 20.0,
+                max_sweeps: 10
+            }
+        );
+        assert_eq!(
+            p.baseline,
+            BaselineParams {
+                iterations: 20,
+                lambda: 0.5,
+                mu: -0.53
+            }
+        );
+        p.validate().unwrap();
+    }
+
+    #[test]
+    fn out_of_range_names_field_and_range() {
+        let p = Params {
+            k_max: 40,
+            ..Params::default()
+        };
+        let e = p.validate().unwrap_err();
+        assert_eq!(e.field, "k_max");
+        assert!(e.to_string().contains("2..=16"), "{e}");
+        let mut p = Params::default();
+        p.quality.sharp_angle_deg = f64::NAN;
+        assert_eq!(p.validate().unwrap_err().field, "quality.sharp_angle_deg");
+    }
+
+    #[test]
+    fn unknown_fields_are_rejected() {
+        let e = serde_json::from_str::<Params>(r#"{"k_maks": 3}"#).unwrap_err();
+        assert!(e.to_string().contains("k_maks"), "{e}");
+        let p: Params =
+            serde_json::from_str(r#"{"method": "taubin", "quality": {"enabled": false}}"#).unwrap();
+        assert_eq!(p.method, Method::Taubin);
+        assert!(!p.quality.enabled);
+        assert_eq!(p.k_max, 9);
+    }
+}

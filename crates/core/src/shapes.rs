@@ -1,0 +1,1 @@
+//! Analytic test shapes as voxel-boundary quad meshes and marching-cubes triangle meshes.

@@ -1,0 +1,1 @@
+//! The smoothing steps of Wang & Yu, one file per step.
