@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 /// Which smoother to run.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
 pub enum Method {
@@ -23,6 +24,7 @@ pub enum Method {
 
 /// What happens at boundary vertices (edges with a single face). Section 0
 /// of the algorithm notes leaves this open.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
 pub enum BoundaryRule {
@@ -36,6 +38,7 @@ pub enum BoundaryRule {
 }
 
 /// All parameters of a run. Defaults: `Params::default()`.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema), schema(default))]
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Params {
@@ -44,24 +47,49 @@ pub struct Params {
     /// Passes of initial smoothing with fixed 2-ring fits (section 2.2).
     /// Default 2; range 0..=100.
     pub initial_passes: u32,
-    /// Passes of adaptive smoothing (section 2.3). Default 12; range 0..=200.
+    /// Passes of adaptive smoothing (section 2.3). Default 10; range 0..=200.
     pub adaptive_passes: u32,
-    /// Largest ring `k` an adaptive neighbourhood may grow to. Default 9;
-    /// range 2..=16.
+    /// Largest ring `k` an adaptive neighbourhood may grow to (section 2.3).
+    /// Default 16; range 2..=32.
     pub k_max: u32,
     /// Most neighbours used in one fit: larger rings are thinned to this many
     /// well-spread points, so a fit's cost does not grow with `k`.
     /// Default 40; range 6..=512.
     pub max_fit_points: u32,
-    /// Flatness tolerance on `|H| l` (l = mean edge length), section 6.
-    /// Default 0.02; range 0..=10.
+    /// Ring of the fits that estimate the curvature used for labelling and
+    /// ring growth, after initial smoothing (open in the paper: a wider fit
+    /// than the 2-ring keeps staircase noise out of the labels).
+    /// Default 6; range 2..=32.
+    pub curvature_ring: u32,
+    /// Flatness tolerance `t_H` on `|H| l` (l = mean edge length), section 6.
+    /// Default 0.04; range 0..=10.
     pub tolerance_h: f64,
-    /// Flatness tolerance on `|K| l^2`, section 6. Default 0.0005; range 0..=10.
+    /// Flatness tolerance `t_K` on `|K| l^2`, section 6. Default 0.002;
+    /// range 0..=10.
     pub tolerance_k: f64,
-    /// Ring growth stops when the standard deviation of `H l` over the
-    /// neighbourhood would exceed this bound (section 2.3). Default 0.1;
-    /// range 0..=100.
+    /// A ring candidate agrees with the centre's label when its curvature
+    /// lies within this margin (on `H l`) of the centre's label region, so
+    /// noise near a tolerance does not split a smooth region. 0 is the
+    /// paper's exact test. Default 0.04; range 0..=10.
+    pub label_margin: f64,
+    /// Growth stops when more than this fraction of the next ring's
+    /// vertices disagree with the centre's label (0 is the paper's "any
+    /// vertex"; a small fraction keeps isolated noisy estimates from
+    /// stopping growth on a smooth surface). Default 0.25; range 0..=1.
+    pub label_disagreement: f64,
+    /// Growth takes the next ring only if the standard deviation of `H l`
+    /// over the grown set does not rise by more than this (the paper asks for
+    /// a decrease; curvature estimates carry noise of about this size).
+    /// Default 0.005; range 0..=10.
+    pub std_tolerance: f64,
+    /// Growth stops when the standard deviation of `H l` over the grown set
+    /// would exceed this bound (section 2.3). Default 0.05; range 0..=100.
     pub curvature_std_bound: f64,
+    /// Growth stops when a quadric fitted out to the next ring would bias
+    /// the projection outward by more than this many mean edge lengths: a
+    /// paraboloid fitted to a sphere of curvature `kappa` over radius `rho`
+    /// sits `rho^4 kappa^3 / 48` above it. Default 0.04; range 0..=10.
+    pub bias_bound: f64,
     /// What boundary vertices do. Default `fixed`.
     pub boundary: BoundaryRule,
     /// Restore the input's enclosed volume at the end by a uniform offset
@@ -78,12 +106,17 @@ impl Default for Params {
         Params {
             method: Method::WangYu,
             initial_passes: 2,
-            adaptive_passes: 12,
-            k_max: 9,
+            adaptive_passes: 10,
+            k_max: 16,
             max_fit_points: 40,
-            tolerance_h: 0.02,
-            tolerance_k: 0.0005,
-            curvature_std_bound: 0.1,
+            curvature_ring: 6,
+            tolerance_h: 0.04,
+            tolerance_k: 0.002,
+            label_margin: 0.04,
+            label_disagreement: 0.25,
+            std_tolerance: 0.005,
+            curvature_std_bound: 0.05,
+            bias_bound: 0.04,
             boundary: BoundaryRule::Fixed,
             preserve_volume: true,
             quality: QualityParams::default(),
@@ -93,6 +126,7 @@ impl Default for Params {
 }
 
 /// Parameters of the quality-improvement stage (section 2.4).
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema), schema(default))]
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct QualityParams {
@@ -120,6 +154,7 @@ impl Default for QualityParams {
 }
 
 /// Parameters of the baseline smoothers (`method = taubin | laplacian`).
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema), schema(default))]
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct BaselineParams {
@@ -198,19 +233,20 @@ impl Params {
     pub fn validate(&self) -> Result<(), ParamError> {
         check_u32("initial_passes", self.initial_passes, 0, 100, "0..=100")?;
         check_u32("adaptive_passes", self.adaptive_passes, 0, 200, "0..=200")?;
-        check_u32("k_max", self.k_max, 2, 16, "2..=16")?;
+        check_u32("k_max", self.k_max, 2, 32, "2..=32")?;
         check_u32("max_fit_points", self.max_fit_points, 6, 512, "6..=512")?;
-        let t = self.tolerance_h;
-        check_f64("tolerance_h", t, (0.0..=10.0).contains(&t), "0..=10")?;
-        let t = self.tolerance_k;
-        check_f64("tolerance_k", t, (0.0..=10.0).contains(&t), "0..=10")?;
-        let s = self.curvature_std_bound;
-        check_f64(
-            "curvature_std_bound",
-            s,
-            (0.0..=100.0).contains(&s),
-            "0..=100",
-        )?;
+        check_u32("curvature_ring", self.curvature_ring, 2, 32, "2..=32")?;
+        for (field, v, hi, allowed) in [
+            ("tolerance_h", self.tolerance_h, 10.0, "0..=10"),
+            ("tolerance_k", self.tolerance_k, 10.0, "0..=10"),
+            ("label_margin", self.label_margin, 10.0, "0..=10"),
+            ("label_disagreement", self.label_disagreement, 1.0, "0..=1"),
+            ("std_tolerance", self.std_tolerance, 10.0, "0..=10"),
+            ("curvature_std_bound", self.curvature_std_bound, 100.0, "0..=100"),
+            ("bias_bound", self.bias_bound, 10.0, "0..=10"),
+        ] {
+            check_f64(field, v, (0.0..=hi).contains(&v), allowed)?;
+        }
         let q = &self.quality;
         let f = q.short_edge_fraction;
         check_f64(
@@ -251,12 +287,17 @@ mod tests {
         let p = Params::default();
         assert_eq!(p.method, Method::WangYu);
         assert_eq!(p.initial_passes, 2);
-        assert_eq!(p.adaptive_passes, 12);
-        assert_eq!(p.k_max, 9);
+        assert_eq!(p.adaptive_passes, 10);
+        assert_eq!(p.k_max, 16);
         assert_eq!(p.max_fit_points, 40);
-        assert_eq!(p.tolerance_h, 0.02);
-        assert_eq!(p.tolerance_k, 0.0005);
-        assert_eq!(p.curvature_std_bound, 0.1);
+        assert_eq!(p.curvature_ring, 6);
+        assert_eq!(p.tolerance_h, 0.04);
+        assert_eq!(p.tolerance_k, 0.002);
+        assert_eq!(p.label_margin, 0.04);
+        assert_eq!(p.label_disagreement, 0.25);
+        assert_eq!(p.std_tolerance, 0.005);
+        assert_eq!(p.curvature_std_bound, 0.05);
+        assert_eq!(p.bias_bound, 0.04);
         assert_eq!(p.boundary, BoundaryRule::Fixed);
         assert!(p.preserve_volume);
         assert_eq!(
@@ -287,7 +328,7 @@ mod tests {
         };
         let e = p.validate().unwrap_err();
         assert_eq!(e.field, "k_max");
-        assert!(e.to_string().contains("2..=16"), "{e}");
+        assert!(e.to_string().contains("2..=32"), "{e}");
         let mut p = Params::default();
         p.quality.sharp_angle_deg = f64::NAN;
         assert_eq!(p.validate().unwrap_err().field, "quality.sharp_angle_deg");

@@ -1,5 +1,410 @@
-//! The quality report (algorithm notes, section 9). (Being written.)
-use serde::Serialize;
+//! The quality report (algorithm notes, section 9): plain data, per stage,
+//! serialisable to JSON and back. The schema is documented field by field in
+//! `docs/report.md` and versioned by [`SCHEMA_VERSION`].
+//!
+//! The measures are computed by [`crate::quality::measures`]; the quality
+//! fixes return the statistics in [`QualityFixStats`]; the pipeline fills
+//! the rest.
+
+use crate::params::{Method, Params};
+use crate::quality::QualityFixStats;
+use crate::smoothing::label::Label;
+use crate::smoothing::project::FitStats;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+
+/// Version of the report's JSON schema: the major number changes when a
+/// field is removed or changes meaning, the minor number when fields are
+/// added.
+pub const SCHEMA_VERSION: &str = "1.0";
+
+/// Width of one angle-histogram bin, in degrees.
+pub const ANGLE_BIN_DEG: f64 = 5.0;
+
+/// Number of angle-histogram bins: `[0, 5), [5, 10), ..., [175, 180]`.
+pub const ANGLE_BINS: usize = 36;
+
 /// The quality report of a run.
-#[derive(Debug, Clone, Default, Serialize)]
-pub struct QualityReport {}
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct QualityReport {
+    /// [`SCHEMA_VERSION`] of the producer.
+    pub schema_version: String,
+    /// Size and topology of the input mesh.
+    pub mesh: MeshStatistics,
+    /// Measures per stage; a stage a method does not have is absent.
+    pub stages: Stages,
+    /// Wang-Yu specifics (labels, ring sizes, fit fallbacks); absent for the
+    /// baseline methods.
+    pub wang_yu: Option<WangYuSummary>,
+    /// What the quality fixes did; absent when they did not run.
+    pub quality_fixes: Option<QualityFixStats>,
+    /// Wall time per pipeline stage, in run order.
+    pub timings: Vec<StageTiming>,
+    /// Wall time of the whole run, in milliseconds.
+    pub total_ms: f64,
+    /// Tool, parameters and content hashes that reproduce the run.
+    pub reproducibility: Reproducibility,
+}
+
+impl QualityReport {
+    /// A report with the mesh statistics and reproducibility block filled,
+    /// no stage measured and no timings.
+    pub fn new(mesh: MeshStatistics, reproducibility: Reproducibility) -> Self {
+        QualityReport {
+            schema_version: SCHEMA_VERSION.to_string(),
+            mesh,
+            stages: Stages::default(),
+            wang_yu: None,
+            quality_fixes: None,
+            timings: Vec::new(),
+            total_ms: 0.0,
+            reproducibility,
+        }
+    }
+}
+
+impl Default for QualityReport {
+    /// An empty report for the default parameters (nothing measured).
+    fn default() -> Self {
+        QualityReport::new(
+            MeshStatistics::default(),
+            Reproducibility::new(&Params::default()),
+        )
+    }
+}
+
+/// Measures per stage of the pipeline.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Stages {
+    /// The input mesh.
+    pub input: Option<StageMeasures>,
+    /// After initial smoothing (Wang-Yu), or after the baseline smoother.
+    pub initial: Option<StageMeasures>,
+    /// After adaptive smoothing and volume restoration (Wang-Yu only).
+    pub adaptive: Option<StageMeasures>,
+    /// The output: after the quality fixes when they ran.
+    #[serde(rename = "final")]
+    pub final_stage: Option<StageMeasures>,
+}
+
+/// Measures of one set of positions on the mesh, against the input.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageMeasures {
+    /// Mean length of the face sides (each side counted once per face), in
+    /// mesh units.
+    pub mean_edge_length: f64,
+    /// Mean curvature variation (section 9); absent when no curvature was
+    /// supplied for the stage.
+    pub curvature_variation: Option<CurvatureVariation>,
+    /// Angles of the triangle split (quads `(v1 v2 v3), (v3 v4 v1)`,
+    /// polygons fanned from corner 0).
+    pub triangle_angles: AngleStats,
+    /// The polygons' own corner angles.
+    pub polygon_angles: AngleStats,
+    /// Unique edges shorter than `short_edge_fraction` times this stage's
+    /// mean edge length.
+    pub short_edges: u64,
+    /// The threshold used for `short_edges`, in mesh units.
+    pub short_edge_threshold: f64,
+    /// Quads whose split triangles' normals are more than 90° apart.
+    pub twisted_quads: u64,
+    /// Faces whose vector area or any split triangle's normal points against
+    /// the same in the input.
+    pub inverted_faces: u64,
+    /// Enclosed volume; absent unless the mesh is closed (no boundary edge).
+    pub volume: Option<VolumeMeasure>,
+    /// How far vertices moved from the input.
+    pub displacement: Displacement,
+}
+
+/// Mean curvature variation: per vertex `max_{j in N_1(i)} |H_i - H_j|`,
+/// averaged over the vertices that have a neighbour.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CurvatureVariation {
+    /// In 1/mesh units.
+    pub mean: f64,
+    /// `mean` times the stage's mean edge length (scale-free).
+    pub mean_scaled: f64,
+}
+
+/// Angle statistics over a set of corners. Angles are unsigned, in
+/// `[0, 180]` degrees; a corner with a zero-length side counts as 0°.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AngleStats {
+    /// Number of corners measured.
+    pub count: u64,
+    /// Smallest angle in degrees; absent when `count` is 0.
+    pub min_deg: Option<f64>,
+    /// Largest angle in degrees; absent when `count` is 0.
+    pub max_deg: Option<f64>,
+    /// Corners below 15°.
+    pub below_15: u64,
+    /// Corners below 20°.
+    pub below_20: u64,
+    /// Corners below 30°.
+    pub below_30: u64,
+    /// Corners above 120°.
+    pub above_120: u64,
+    /// Corners above 150°.
+    pub above_150: u64,
+    /// Corners above 160°.
+    pub above_160: u64,
+    /// [`ANGLE_BINS`] counts; bin `i` holds angles in `[5 i, 5 i + 5)`
+    /// degrees, the last bin includes 180.
+    pub histogram: Vec<u64>,
+}
+
+impl Default for AngleStats {
+    fn default() -> Self {
+        AngleStats {
+            count: 0,
+            min_deg: None,
+            max_deg: None,
+            below_15: 0,
+            below_20: 0,
+            below_30: 0,
+            above_120: 0,
+            above_150: 0,
+            above_160: 0,
+            histogram: vec![0; ANGLE_BINS],
+        }
+    }
+}
+
+/// Enclosed volume of a closed mesh.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct VolumeMeasure {
+    /// Signed volume by the divergence theorem, in cubic mesh units
+    /// (positive for outward normals).
+    pub volume: f64,
+    /// `(volume - input volume) / |input volume|`; absent when the input
+    /// volume is 0.
+    pub relative_change: Option<f64>,
+}
+
+/// Vertex displacement from the input, over all vertices, in mesh units.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct Displacement {
+    /// Mean distance.
+    pub mean: f64,
+    /// Root mean square distance.
+    pub rms: f64,
+    /// Largest distance.
+    pub max: f64,
+}
+
+/// Size and topology of a mesh.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct MeshStatistics {
+    /// Vertices.
+    pub vertices: u64,
+    /// Faces.
+    pub faces: u64,
+    /// Faces with 3 corners.
+    pub triangles: u64,
+    /// Faces with 4 corners.
+    pub quads: u64,
+    /// Faces with more than 4 corners.
+    pub polygons: u64,
+    /// Most corners of one face (0 without faces).
+    pub max_face_arity: u64,
+    /// Unique undirected edges.
+    pub edges: u64,
+    /// Edges with exactly one face.
+    pub boundary_edges: u64,
+    /// Vertices on a boundary edge (and not non-manifold).
+    pub boundary_vertices: u64,
+    /// Edges with more than two faces.
+    pub non_manifold_edges: u64,
+    /// Vertices on a non-manifold edge or joining separate fans (pinches).
+    pub non_manifold_vertices: u64,
+    /// Most faces sharing one edge.
+    pub max_faces_per_edge: u64,
+    /// Vertices no face uses.
+    pub isolated_vertices: u64,
+    /// Faces with a repeated corner or zero vector area.
+    pub degenerate_faces: u64,
+    /// Connected components (isolated vertices not counted).
+    pub components: u64,
+    /// True when no edge is a boundary edge (volume is then reported).
+    pub closed: bool,
+}
+
+/// Vertices per label of the paper's Table 2.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LabelCounts {
+    /// Flat vertices.
+    pub flat: u64,
+    /// Minimal (saddle-like) vertices.
+    pub minimal: u64,
+    /// Convex vertices.
+    pub convex: u64,
+    /// Concave vertices.
+    pub concave: u64,
+}
+
+impl LabelCounts {
+    /// Counts `labels` (one per vertex).
+    pub fn from_labels(labels: &[Label]) -> Self {
+        let mut c = LabelCounts::default();
+        for l in labels {
+            match l {
+                Label::Flat => c.flat += 1,
+                Label::Minimal => c.minimal += 1,
+                Label::Convex => c.convex += 1,
+                Label::Concave => c.concave += 1,
+            }
+        }
+        c
+    }
+}
+
+/// How the quadric fits of a stage ended (section 3 fallbacks).
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct FitCounts {
+    /// Fits that used the full quadric, summed over passes.
+    pub quadric: u64,
+    /// Fits that fell back to a plane.
+    pub plane: u64,
+    /// Fits that left the vertex in place.
+    pub fixed: u64,
+    /// Largest single move of a vertex in one pass, in mesh units.
+    pub max_step: f64,
+}
+
+impl From<FitStats> for FitCounts {
+    fn from(s: FitStats) -> Self {
+        FitCounts {
+            quadric: s.quadric,
+            plane: s.plane_fallback,
+            fixed: s.fixed_fallback,
+            max_step: s.max_displacement,
+        }
+    }
+}
+
+/// Wang-Yu specifics.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WangYuSummary {
+    /// Vertices per label (from the curvature after initial smoothing).
+    pub labels: LabelCounts,
+    /// Entry `k` is the number of vertices whose adaptive neighbourhood
+    /// ended at ring `k` (entries 0 and 1 are vertices that were not grown,
+    /// e.g. fixed ones).
+    pub ring_size_histogram: Vec<u64>,
+    /// Fits of the initial passes.
+    pub initial_fits: FitCounts,
+    /// Fits of the adaptive passes.
+    pub adaptive_fits: FitCounts,
+    /// Offset along the vertex normals that restored the input volume, in
+    /// mesh units (0 when not applied).
+    pub volume_offset: f64,
+}
+
+/// Histogram of ring sizes: entry `k` counts the vertices with `ring[v] ==
+/// k`; its length is the largest `k` plus one (empty for no vertices).
+pub fn ring_size_histogram(ring: &[u8]) -> Vec<u64> {
+    let mut h = vec![0u64; ring.iter().max().map_or(0, |&m| m as usize + 1)];
+    for &k in ring {
+        h[k as usize] += 1;
+    }
+    h
+}
+
+/// Wall time of one pipeline stage.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageTiming {
+    /// Stable stage name (`analyse`, `initial`, `label`, `adaptive`,
+    /// `quality`, `report`).
+    pub stage: String,
+    /// Milliseconds.
+    pub ms: f64,
+}
+
+/// What reproduces the run.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Reproducibility {
+    /// Always `meshsmooth`.
+    pub tool: String,
+    /// Version of the tool (the core crate's version).
+    pub tool_version: String,
+    /// The smoother used (also in `params.method`).
+    pub method: Method,
+    /// The parameters as used, defaults filled in.
+    pub params: Params,
+    /// SHA-256 of the input file's bytes, lower-case hex; filled by the
+    /// caller that read the file.
+    pub input_sha256: Option<String>,
+    /// SHA-256 of the output file's bytes, lower-case hex; filled by the
+    /// caller that wrote the file.
+    pub output_sha256: Option<String>,
+}
+
+impl Reproducibility {
+    /// The block for a run with `params`, hashes not yet known.
+    pub fn new(params: &Params) -> Self {
+        Reproducibility {
+            tool: "meshsmooth".to_string(),
+            tool_version: env!("CARGO_PKG_VERSION").to_string(),
+            method: params.method,
+            params: params.clone(),
+            input_sha256: None,
+            output_sha256: None,
+        }
+    }
+}
+
+/// SHA-256 of `bytes` as 64 lower-case hex digits.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    let digest = Sha256::digest(bytes);
+    let mut s = String::with_capacity(64);
+    for b in digest {
+        const HEX: &[u8; 16] = b"0123456789abcdef";
+        s.push(HEX[(b >> 4) as usize] as char);
+        s.push(HEX[(b & 15) as usize] as char);
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sha256_of_known_strings() {
+        // FIPS 180-2 test vectors.
+        assert_eq!(
+            sha256_hex(b"abc"),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+        assert_eq!(
+            sha256_hex(b""),
+            "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
+        );
+    }
+
+    #[test]
+    fn ring_histogram_counts_each_k() {
+        assert_eq!(ring_size_histogram(&[2, 2, 5, 3]), vec![0, 0, 2, 1, 0, 1]);
+        assert!(ring_size_histogram(&[]).is_empty());
+    }
+
+    #[test]
+    fn labels_are_counted() {
+        let c = LabelCounts::from_labels(&[Label::Flat, Label::Convex, Label::Convex]);
+        assert_eq!((c.flat, c.minimal, c.convex, c.concave), (1, 0, 2, 0));
+    }
+}

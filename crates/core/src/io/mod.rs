@@ -6,7 +6,11 @@
 //! Nothing a file points to (external buffers, material libraries) is ever
 //! fetched.
 
+pub mod gltf;
 pub mod obj;
+pub mod ply;
+pub mod stl;
+pub mod weld;
 
 use crate::mesh::Mesh;
 use glam::DVec3;
@@ -17,13 +21,39 @@ use thiserror::Error;
 pub enum Format {
     /// Wavefront OBJ (text).
     Obj,
+    /// glTF 2.0 JSON (`.gltf`) with buffers embedded as `data:` URIs.
+    Gltf,
+    /// Binary glTF 2.0 (`.glb`).
+    Glb,
+    /// Stanford PLY: ASCII or binary.
+    Ply,
+    /// STL: ASCII or binary.
+    Stl,
 }
 
 impl Format {
+    /// Every format, in the order they are listed to users.
+    pub const ALL: &'static [Format] = &[
+        Format::Obj,
+        Format::Gltf,
+        Format::Glb,
+        Format::Ply,
+        Format::Stl,
+    ];
+
+    /// Short lowercase name, as accepted by [`str::parse`] (`obj`).
+    pub fn name(self) -> &'static str {
+        self.extension()
+    }
+
     /// Canonical file extension, without the dot.
     pub fn extension(self) -> &'static str {
         match self {
             Format::Obj => "obj",
+            Format::Gltf => "gltf",
+            Format::Glb => "glb",
+            Format::Ply => "ply",
+            Format::Stl => "stl",
         }
     }
 
@@ -31,16 +61,20 @@ impl Format {
     pub fn content_type(self) -> &'static str {
         match self {
             Format::Obj => "model/obj",
+            Format::Gltf => "model/gltf+json",
+            Format::Glb => "model/gltf-binary",
+            Format::Ply => "application/x-ply",
+            Format::Stl => "model/stl",
         }
     }
 
     /// Format from a file name's extension (case-insensitive).
     pub fn from_file_name(name: &str) -> Option<Format> {
-        let ext = name.rsplit_once('.')?.1.to_ascii_lowercase();
-        match ext.as_str() {
-            "obj" => Some(Format::Obj),
-            _ => None,
-        }
+        let ext = name.rsplit_once('.')?.1;
+        Format::ALL
+            .iter()
+            .copied()
+            .find(|f| f.extension().eq_ignore_ascii_case(ext))
     }
 
     /// Format from an HTTP `Content-Type` (parameters ignored).
@@ -48,19 +82,88 @@ impl Format {
         let essence = ct.split(';').next()?.trim().to_ascii_lowercase();
         match essence.as_str() {
             "model/obj" | "text/x-obj" | "application/x-tgif" => Some(Format::Obj),
+            "model/gltf+json" => Some(Format::Gltf),
+            "model/gltf-binary" => Some(Format::Glb),
+            "application/ply" | "application/x-ply" | "model/ply" | "model/x-ply" => {
+                Some(Format::Ply)
+            }
+            "model/stl"
+            | "model/x.stl-ascii"
+            | "model/x.stl-binary"
+            | "application/sla"
+            | "application/vnd.ms-pki.stl" => Some(Format::Stl),
             _ => None,
         }
     }
 
-    /// Format guessed from the first bytes of a file.
+    /// Format guessed from the bytes of a file, checked in this order: the
+    /// GLB magic, the `ply` magic, a binary STL's size (`84 + 50 x` its
+    /// triangle count), a JSON object (glTF), `solid` (ASCII STL), OBJ
+    /// keywords; `None` when nothing matches.
     pub fn sniff(bytes: &[u8]) -> Option<Format> {
-        let head = &bytes[..bytes.len().min(4096)];
-        let text = std::str::from_utf8(head).ok()?;
-        let looks_obj = text.lines().any(|l| {
-            let l = l.trim_start();
-            l.starts_with("v ") || l.starts_with("f ") || l.starts_with("v\t")
+        let head = bytes.get(..bytes.len().min(8192)).unwrap_or(bytes);
+        let head = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
+        let text = head.trim_ascii_start();
+        if gltf::is_glb(bytes) {
+            return Some(Format::Glb);
+        }
+        if head.starts_with(b"ply\n") || head.starts_with(b"ply\r\n") {
+            return Some(Format::Ply);
+        }
+        let stl_count = bytes.get(80..84).and_then(|c| c.try_into().ok());
+        if stl_count
+            .is_some_and(|c| 84 + 50 * u64::from(u32::from_le_bytes(c)) == bytes.len() as u64)
+        {
+            return Some(Format::Stl);
+        }
+        if text.starts_with(b"{") {
+            return Some(Format::Gltf);
+        }
+        if text
+            .get(..5)
+            .is_some_and(|w| w.eq_ignore_ascii_case(b"solid"))
+        {
+            return Some(Format::Stl);
+        }
+        const OBJ_KEYWORDS: &[&[u8]] =
+            &[b"v", b"vt", b"vn", b"f", b"o", b"g", b"mtllib", b"usemtl"];
+        let looks_obj = head.split(|&b| b == b'\n').any(|line| {
+            let keyword = line
+                .split(|b| b.is_ascii_whitespace())
+                .find(|w| !w.is_empty())
+                .unwrap_or_default();
+            OBJ_KEYWORDS.contains(&keyword)
         });
         looks_obj.then_some(Format::Obj)
+    }
+}
+
+impl std::fmt::Display for Format {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A format name that is not one of [`Format::ALL`].
+#[derive(Debug, Clone, PartialEq, Eq, Error)]
+#[error("unknown mesh format `{0}`; expected one of: {list}", list = format_names())]
+pub struct UnknownFormat(pub String);
+
+fn format_names() -> String {
+    let names: Vec<&str> = Format::ALL.iter().map(|f| f.name()).collect();
+    names.join(", ")
+}
+
+impl std::str::FromStr for Format {
+    type Err = UnknownFormat;
+
+    /// Parses a [`Format::name`] or extension, case-insensitively.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Format::ALL
+            .iter()
+            .copied()
+            .find(|f| f.name().eq_ignore_ascii_case(s) || f.extension().eq_ignore_ascii_case(s))
+            .ok_or_else(|| UnknownFormat(s.to_owned()))
     }
 }
 
@@ -82,19 +185,86 @@ impl Default for ReadLimits {
     }
 }
 
+/// Options of [`read_with`]: limits and welding.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReadOptions {
+    /// Limits on untrusted input.
+    pub limits: ReadLimits,
+    /// Join vertices that share a position (see [`weld`]); `None` takes the
+    /// format's default: on for glTF and STL, off for OBJ and PLY.
+    pub weld: Option<bool>,
+    /// Welding tolerance as a fraction of the bounding-box diagonal; 0
+    /// joins only equal positions. Default 0.
+    pub weld_tolerance: f64,
+}
+
+impl Default for ReadOptions {
+    fn default() -> Self {
+        ReadOptions {
+            limits: ReadLimits::default(),
+            weld: None,
+            weld_tolerance: 0.0,
+        }
+    }
+}
+
 /// A parsed file: the mesh to smooth plus what is needed to write it back.
 #[derive(Debug, Clone)]
 pub struct Document {
-    /// The mesh the smoother works on.
+    /// The mesh the smoother works on (welded when welding was on).
     pub mesh: Mesh,
     /// Format the document was read from.
     pub format: Format,
+    /// When the file was welded: one entry per vertex of the file, its
+    /// vertex in `mesh`.
+    pub vertex_map: Option<Vec<u32>>,
     source: Source,
 }
 
 #[derive(Debug, Clone)]
 enum Source {
     Obj(obj::ObjSource),
+    Gltf(gltf::GltfSource),
+    Ply(ply::PlySource),
+    Stl(stl::StlSource),
+}
+
+/// Per-vertex results to store with the written mesh, each slice empty
+/// (left out) or one entry per vertex of [`Document::mesh`]. glTF stores
+/// them as float attributes `_LABEL`, `_MEAN_CURVATURE`,
+/// `_GAUSSIAN_CURVATURE`, `_DISPLACEMENT`; PLY as vertex properties
+/// `label` (uchar), `mean_curvature`, `gaussian_curvature`, `displacement`
+/// (float); OBJ and STL cannot hold them.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct VertexResults<'a> {
+    /// Label of each vertex (Table 2 of Wang & Yu).
+    pub label: &'a [u8],
+    /// Mean curvature `H`.
+    pub mean_curvature: &'a [f64],
+    /// Gaussian curvature `K`.
+    pub gaussian_curvature: &'a [f64],
+    /// Distance moved.
+    pub displacement: &'a [f64],
+}
+
+impl<'a> From<&'a crate::pipeline::PerVertex> for VertexResults<'a> {
+    fn from(p: &'a crate::pipeline::PerVertex) -> Self {
+        VertexResults {
+            label: &p.label,
+            mean_curvature: &p.mean_curvature,
+            gaussian_curvature: &p.gaussian_curvature,
+            displacement: &p.displacement,
+        }
+    }
+}
+
+/// Options of [`write_with`].
+#[derive(Debug, Clone, Copy, Default)]
+pub struct WriteOptions<'a> {
+    /// Per-vertex results to add (glTF and PLY only). Default none.
+    pub results: Option<VertexResults<'a>>,
+    /// Write STL as ASCII instead of binary. Default false.
+    pub stl_ascii: bool,
 }
 
 /// Why a file could not be read or written.
@@ -107,12 +277,19 @@ pub enum IoError {
         line: Option<usize>,
         message: String,
     },
-    /// The input exceeds a configured limit.
-    #[error("{what} count {count} exceeds the limit of {limit}")]
+    /// The input exceeds a configured limit. When found while streaming,
+    /// `count` is how many were seen when the limit was passed.
+    #[error("{what} count exceeds the limit of {limit} (found at least {count})")]
     Limit {
         what: &'static str,
         count: usize,
         limit: usize,
+    },
+    /// The file is valid but has no faces: there is no surface to smooth.
+    #[error("{format} file has no faces: {message}")]
+    NoFaces {
+        format: &'static str,
+        message: String,
     },
     /// The file is valid but uses something this reader does not support.
     #[error("unsupported {format} content: {message}")]
@@ -123,9 +300,57 @@ pub enum IoError {
     /// The data does not make a valid mesh.
     #[error(transparent)]
     Mesh(#[from] crate::error::MeshError),
+    /// Positions handed to a writer are not one per vertex.
+    #[error("{got} positions given for a mesh of {expected} vertices")]
+    PositionCount { expected: usize, got: usize },
     /// Writing failed.
     #[error("i/o error: {0}")]
     Io(#[from] std::io::Error),
+    /// The file refers to an external resource, which is never fetched.
+    #[error(
+        "glTF {what} {index} refers to the external URI `{uri}`; external files and URLs are never fetched: embed the data (a data: URI) or send a .glb"
+    )]
+    ExternalUri {
+        what: &'static str,
+        index: usize,
+        uri: String,
+    },
+    /// A required extension this reader cannot handle.
+    #[error("unsupported required {format} extension `{name}`")]
+    UnsupportedExtension { format: &'static str, name: String },
+    /// The only primitives are points or lines.
+    #[error(
+        "glTF mesh {mesh} primitive {primitive} has mode {mode} ({}) and the document has no triangles; only triangles, strips and fans can be smoothed",
+        primitive_mode_name(*mode)
+    )]
+    UnsupportedPrimitiveMode {
+        mesh: usize,
+        primitive: usize,
+        mode: u64,
+    },
+    /// The glTF document breaks the specification; `accessor` names the
+    /// accessor at fault, if one is.
+    #[error("invalid glTF: {message}")]
+    GltfInvalid {
+        accessor: Option<usize>,
+        message: String,
+    },
+    /// The GLB container (header and chunks) is malformed.
+    #[error("invalid GLB container: {0}")]
+    GlbInvalid(String),
+}
+
+fn primitive_mode_name(mode: u64) -> &'static str {
+    match mode {
+        0 => "POINTS",
+        1 => "LINES",
+        2 => "LINE_LOOP",
+        3 => "LINE_STRIP",
+        4 => "TRIANGLES",
+        5 => "TRIANGLE_STRIP",
+        6 => "TRIANGLE_FAN",
+        _ => "unknown",
+    }
 }
 
 impl IoError {
@@ -134,33 +359,247 @@ impl IoError {
         match self {
             IoError::Parse { .. } => "parse_error",
             IoError::Limit { .. } => "limit_exceeded",
+            IoError::NoFaces { .. } => "no_faces",
             IoError::Unsupported { .. } => "unsupported_content",
             IoError::Mesh(e) => e.code(),
+            IoError::PositionCount { .. } => "position_count_mismatch",
             IoError::Io(_) => "io_error",
+            IoError::ExternalUri { .. } => "external_uri_not_allowed",
+            IoError::UnsupportedExtension { .. } => "unsupported_extension",
+            IoError::UnsupportedPrimitiveMode { .. } => "unsupported_primitive_mode",
+            IoError::GltfInvalid { .. } => "gltf_invalid",
+            IoError::GlbInvalid(_) => "glb_invalid",
         }
     }
 }
 
-/// Reads `bytes` as `format`.
+/// Reads `bytes` as `format` with the format's default welding.
 pub fn read(bytes: &[u8], format: Format, limits: &ReadLimits) -> Result<Document, IoError> {
-    match format {
+    let options = ReadOptions {
+        limits: limits.clone(),
+        ..ReadOptions::default()
+    };
+    read_with(bytes, format, &options)
+}
+
+/// Reads `bytes` as `format`, then welds when `options` (or the format's
+/// default) ask for it. `.gltf` and `.glb` are read alike (by the magic).
+pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<Document, IoError> {
+    let limits = &options.limits;
+    let (mesh, source) = match format {
         Format::Obj => {
             let (mesh, src) = obj::read_obj(bytes, limits)?;
-            Ok(Document {
-                mesh,
-                format,
-                source: Source::Obj(src),
-            })
+            (mesh, Source::Obj(src))
         }
-    }
+        Format::Gltf | Format::Glb => {
+            let (mesh, src) = gltf::read_gltf(bytes, limits)?;
+            (mesh, Source::Gltf(src))
+        }
+        Format::Ply => {
+            let (mesh, src) = ply::read_ply(bytes, limits)?;
+            (mesh, Source::Ply(src))
+        }
+        Format::Stl => {
+            let (mesh, src) = stl::read_stl(bytes, limits)?;
+            (mesh, Source::Stl(src))
+        }
+    };
+    let weld_default = matches!(format, Format::Gltf | Format::Glb | Format::Stl);
+    let groups = match &source {
+        Source::Gltf(src) => Some(src.vertex_groups()),
+        _ => None,
+    };
+    let (mesh, vertex_map) = match options.weld.unwrap_or(weld_default) {
+        true => match weld::weld(&mesh, options.weld_tolerance, groups.as_deref())? {
+            Some(w) => (w.mesh, Some(w.vertex_map)),
+            None => (mesh, None),
+        },
+        false => (mesh, None),
+    };
+    Ok(Document {
+        mesh,
+        format,
+        vertex_map,
+        source,
+    })
 }
 
 /// Writes `doc` with `positions` (one per vertex of `doc.mesh`) as `format`.
-/// Writing in the input's format keeps everything else of the file.
+/// Writing in the input's format keeps everything else of the file; another
+/// format gets the mesh alone.
 pub fn write(doc: &Document, positions: &[DVec3], format: Format) -> Result<Vec<u8>, IoError> {
+    write_with(doc, positions, format, &WriteOptions::default())
+}
+
+/// [`write`] with options: per-vertex results and STL encoding. Writing in
+/// the input's format (`.gltf` and `.glb` count as one) keeps the file's
+/// vertex count and order: welded vertices get their welded vertex's
+/// position.
+pub fn write_with(
+    doc: &Document,
+    positions: &[DVec3],
+    format: Format,
+    options: &WriteOptions,
+) -> Result<Vec<u8>, IoError> {
+    if positions.len() != doc.mesh.num_vertices() {
+        return Err(IoError::PositionCount {
+            expected: doc.mesh.num_vertices(),
+            got: positions.len(),
+        });
+    }
+    let results = options.results.as_ref();
+    if let Some(r) = results {
+        let lengths = [
+            r.label.len(),
+            r.mean_curvature.len(),
+            r.gaussian_curvature.len(),
+            r.displacement.len(),
+        ];
+        if let Some(&got) = lengths
+            .iter()
+            .find(|&&n| n != 0 && n != doc.mesh.num_vertices())
+        {
+            return Err(IoError::PositionCount {
+                expected: doc.mesh.num_vertices(),
+                got,
+            });
+        }
+    }
     let mut out = Vec::new();
-    match (format, &doc.source) {
-        (Format::Obj, Source::Obj(src)) => obj::write_obj(src, positions, &mut out)?,
+    let same_format = matches!(
+        (&doc.source, format),
+        (Source::Obj(_), Format::Obj)
+            | (Source::Gltf(_), Format::Gltf | Format::Glb)
+            | (Source::Ply(_), Format::Ply)
+            | (Source::Stl(_), Format::Stl)
+    );
+    if same_format {
+        let expanded = doc.expand_positions(positions);
+        let expanded_results = results.map(|r| ExpandedResults::new(r, doc.vertex_map.as_deref()));
+        let results = expanded_results.as_ref().map(ExpandedResults::view);
+        let results = results.as_ref();
+        match (&doc.source, format) {
+            (Source::Obj(src), _) => obj::write_obj(src, &expanded, &mut out)?,
+            (Source::Gltf(src), _) => {
+                gltf::write_gltf(src, &expanded, results, format == Format::Glb, &mut out)?
+            }
+            (Source::Ply(src), _) => ply::write_ply(src, &expanded, results, &mut out)?,
+            (Source::Stl(src), _) => stl::write_stl(src, &expanded, options.stl_ascii, &mut out)?,
+        }
+        return Ok(out);
+    }
+    let mesh = &doc.mesh;
+    match format {
+        Format::Obj => obj::write_obj_plain(mesh, positions, &mut out)?,
+        Format::Gltf | Format::Glb => {
+            gltf::write_gltf_plain(mesh, positions, results, format == Format::Glb, &mut out)?
+        }
+        Format::Ply => ply::write_ply_plain(mesh, positions, results, &mut out)?,
+        Format::Stl => stl::write_stl_plain(mesh, positions, options.stl_ascii, &mut out)?,
     }
     Ok(out)
+}
+
+/// Per-vertex results expanded to the file's vertices.
+struct ExpandedResults {
+    label: Vec<u8>,
+    mean_curvature: Vec<f64>,
+    gaussian_curvature: Vec<f64>,
+    displacement: Vec<f64>,
+}
+
+impl ExpandedResults {
+    fn new(r: &VertexResults, map: Option<&[u32]>) -> Self {
+        fn one<T: Copy + Default>(values: &[T], map: Option<&[u32]>) -> Vec<T> {
+            match map {
+                Some(map) if !values.is_empty() => weld::expand(values, map),
+                _ => values.to_vec(),
+            }
+        }
+        ExpandedResults {
+            label: one(r.label, map),
+            mean_curvature: one(r.mean_curvature, map),
+            gaussian_curvature: one(r.gaussian_curvature, map),
+            displacement: one(r.displacement, map),
+        }
+    }
+
+    fn view(&self) -> VertexResults<'_> {
+        VertexResults {
+            label: &self.label,
+            mean_curvature: &self.mean_curvature,
+            gaussian_curvature: &self.gaussian_curvature,
+            displacement: &self.displacement,
+        }
+    }
+}
+
+impl Document {
+    /// Positions for every vertex of the file from `positions` (one per
+    /// vertex of [`Document::mesh`]): each welded vertex's position goes to
+    /// all the file vertices joined into it. Without welding, a copy.
+    pub fn expand_positions(&self, positions: &[DVec3]) -> Vec<DVec3> {
+        match &self.vertex_map {
+            Some(map) => weld::expand(positions, map),
+            None => positions.to_vec(),
+        }
+    }
+
+    /// Number of vertices in the file (before welding).
+    pub fn num_file_vertices(&self) -> usize {
+        self.vertex_map
+            .as_ref()
+            .map_or(self.mesh.num_vertices(), Vec::len)
+    }
+
+    /// [`write`] as a method: `doc.write_as(positions, format)`.
+    pub fn write_as(&self, positions: &[DVec3], format: Format) -> Result<Vec<u8>, IoError> {
+        write(self, positions, format)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn format_names_parse_and_display() {
+        for &f in Format::ALL {
+            assert_eq!(f.name().parse::<Format>(), Ok(f));
+            assert_eq!(f.to_string(), f.name());
+            assert_eq!(f.name().to_uppercase().parse::<Format>(), Ok(f));
+        }
+        let e = "stp".parse::<Format>().unwrap_err();
+        assert!(
+            e.to_string().contains("`stp`") && e.to_string().contains("obj"),
+            "{e}"
+        );
+        assert_eq!(Format::from_file_name("a/b.OBJ"), Some(Format::Obj));
+        assert_eq!(Format::from_file_name("noext"), None);
+        assert_eq!(
+            Format::from_content_type("model/obj; charset=utf-8"),
+            Some(Format::Obj)
+        );
+    }
+
+    #[test]
+    fn sniffing_finds_obj_keywords() {
+        assert_eq!(Format::sniff(b"# c\n\nv 1 2 3\n"), Some(Format::Obj));
+        assert_eq!(
+            Format::sniff(b"\xEF\xBB\xBFmtllib x.mtl\r\n"),
+            Some(Format::Obj)
+        );
+        assert_eq!(Format::sniff(b"hello world\n"), None);
+        assert_eq!(Format::sniff(b""), None);
+    }
+
+    #[test]
+    fn write_checks_the_position_count() {
+        let text = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+        let doc = read(text, Format::Obj, &ReadLimits::default()).unwrap();
+        let out = doc.write_as(doc.mesh.positions(), Format::Obj).unwrap();
+        assert_eq!(out, text);
+        let e = write(&doc, &[DVec3::ZERO], Format::Obj).unwrap_err();
+        assert_eq!(e.code(), "position_count_mismatch");
+    }
 }

@@ -44,6 +44,16 @@ impl RingWalker {
     /// Adds the next ring (vertices at exactly one more edge) and returns it;
     /// empty when the component is exhausted.
     pub fn grow(&mut self, topo: &Topology) -> &[u32] {
+        self.grow_beam(topo, usize::MAX)
+    }
+
+    /// Like [`RingWalker::grow`], but expands at most `beam` vertices of the
+    /// last ring, chosen by an even stride through it, so a walk to ring `k`
+    /// costs `O(k * beam)` instead of `O(k^2)`. The result is then a
+    /// well-spread sample of the next ring rather than all of it (a vertex of
+    /// the sample may be closer than `k + 1` edges when its shorter path runs
+    /// through an unexpanded vertex).
+    pub fn grow_beam(&mut self, topo: &Topology, beam: usize) -> &[u32] {
         let g = self.generation;
         let start = self.found.len();
         let (frontier_a, frontier_b) = if self.ring_starts.len() == 1 {
@@ -62,7 +72,10 @@ impl RingWalker {
                 }
             }
         } else {
-            for idx in frontier_a..frontier_b {
+            let len = frontier_b - frontier_a;
+            let take = len.min(beam.max(1));
+            for q in 0..take {
+                let idx = frontier_a + q * len / take;
                 let u = self.found[idx] as usize;
                 for &w in topo.neighbors(u) {
                     if self.stamp[w as usize] != g {
@@ -143,5 +156,42 @@ mod tests {
         assert_eq!(w.k_ring(&t, centre, 2).len(), 12);
         assert_eq!(w.ring(2).len(), 8);
         assert!(!w.found().contains(&(centre as u32)));
+    }
+
+    #[test]
+    fn beam_walk_samples_each_ring() {
+        let n = 20u32;
+        let mut p = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                p.push(DVec3::new(i as f64, j as f64, 0.0));
+            }
+        }
+        let mut f = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                let a = j * (n + 1) + i;
+                f.push([a, a + 1, a + n + 2, a + n + 1]);
+            }
+        }
+        let m = Mesh::from_polygons(p, &f).unwrap();
+        let t = Topology::build(&m);
+        let c = (10 * (n + 1) + 10) as usize;
+        let mut w = RingWalker::new(m.num_vertices());
+        w.start(&t, c);
+        for _ in 0..8 {
+            let ring = w.grow_beam(&t, 6);
+            assert!(!ring.is_empty() && ring.len() <= 6 * 4);
+        }
+        // The last ring's sample lies far out in every direction.
+        let pos = m.positions();
+        let ring = w.ring(8);
+        for (dx, dy) in [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)] {
+            let reach = ring
+                .iter()
+                .map(|&v| (pos[v as usize] - pos[c]).dot(DVec3::new(dx, dy, 0.0)))
+                .fold(f64::MIN, f64::max);
+            assert!(reach >= 5.0, "direction ({dx}, {dy}) reaches {reach}");
+        }
     }
 }

@@ -1,0 +1,237 @@
+//! Short-edge fix (paper section 2.4; algorithm notes section 8).
+//!
+//! An edge `(v1, v2)` is short when it is shorter than a fraction of the
+//! mean edge length. For end point `v1`, let `c` and `d` be the other ends
+//! of `v1`'s sides in the two faces that share the short edge; the
+//! bisector of the angle `c v1 d` on the side away from `v2` (in the
+//! tangent plane at `v1`) meets the polygon of `v1`'s link (the other
+//! corners of its faces) at `p1`; that is the intersection of the plane
+//! through the bisector and the normal with the edges around `v1`.
+//! Likewise `p2` for `v2`. The two end points move to the trisection points
+//! of the polyline `p1 v1 v2 p2`, so the edge becomes a third of it, and are
+//! then lifted onto their local fitted quadrics (section 3, fitted to the
+//! 2-ring in the frame of the current position and normal) so the shape is
+//! kept.
+//!
+//! A move is kept only when the edge gets longer and nothing gets worse
+//! (see `MoveTester`): no face becomes inverted relative to the input, no
+//! quad becomes twisted, no defect count grows and the smallest
+//! split-triangle angle of the faces around the two end points does not
+//! shrink. Otherwise both end points stay.
+//!
+//! Order: Gauss-Seidel, sequential, edges in ascending edge order within a
+//! sweep (deterministic); later sweeps revisit only the edges still short;
+//! the fix stops after a sweep that moves nothing or after `max_sweeps`.
+//! Only edges with two interior end points and exactly two faces move.
+
+use super::local::{LocalSurface, MoveTester, ordered_link};
+use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length};
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::TAU;
+
+/// What the short-edge fix did.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct ShortEdgeStats {
+    /// Short-edge threshold used, in mesh units.
+    pub threshold: f64,
+    /// Short edges before the fix.
+    pub found: u64,
+    /// Accepted moves (an edge lengthened), over all sweeps.
+    pub lengthened: u64,
+    /// Tried moves refused because they would have made something worse,
+    /// or short edges that could not be constructed for (boundary,
+    /// non-manifold).
+    pub rejected: u64,
+    /// Sweeps run.
+    pub sweeps: u64,
+    /// Short edges after the fix (same threshold).
+    pub remaining: u64,
+}
+
+fn short_edges(topo: &Topology, positions: &[DVec3], threshold: f64) -> Vec<u32> {
+    let t2 = threshold * threshold;
+    let edges = topo.edges();
+    (0..edges.len() as u32)
+        .into_par_iter()
+        .with_min_len(4096)
+        .filter(|&e| {
+            let [a, b] = edges[e as usize];
+            positions[a as usize].distance_squared(positions[b as usize]) < t2
+        })
+        .collect()
+}
+
+/// Lengthens edges shorter than `fraction` times the mean edge length (of
+/// `positions`) by the trisection construction; at most `max_sweeps`
+/// sweeps. Moves vertices in `positions` in place (one entry per vertex;
+/// `input`, the input positions, likewise).
+pub fn fix_short_edges(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &mut [DVec3],
+    input: &[DVec3],
+    fraction: f64,
+    max_sweeps: u32,
+) -> ShortEdgeStats {
+    let threshold = fraction * mean_edge_length(mesh, positions);
+    let mut short = short_edges(topo, positions, threshold);
+    let mut stats = ShortEdgeStats {
+        threshold,
+        found: short.len() as u64,
+        ..ShortEdgeStats::default()
+    };
+    let mut fixer = Fixer::default();
+    while !short.is_empty() && stats.sweeps < max_sweeps as u64 {
+        stats.sweeps += 1;
+        let mut changed = false;
+        for &e in &short {
+            if fixer.lengthen(mesh, topo, e as usize, positions, input) {
+                stats.lengthened += 1;
+                changed = true;
+            } else {
+                stats.rejected += 1;
+            }
+        }
+        let t2 = threshold * threshold;
+        let p: &[DVec3] = positions;
+        short.retain(|&e| {
+            let [a, b] = topo.edges()[e as usize];
+            p[a as usize].distance_squared(p[b as usize]) < t2
+        });
+        if !changed {
+            break;
+        }
+    }
+    stats.remaining = short.len() as u64;
+    if stats.sweeps == max_sweeps as u64 && !short.is_empty() {
+        stats.remaining = short_edges(topo, positions, threshold).len() as u64;
+    }
+    stats
+}
+
+#[derive(Debug, Default)]
+struct Fixer {
+    ring: Vec<u32>,
+    link: Vec<u32>,
+    tester: MoveTester,
+}
+
+impl Fixer {
+    /// Tries the trisection move on edge `e`; returns whether it was kept.
+    fn lengthen(
+        &mut self,
+        mesh: &Mesh,
+        topo: &Topology,
+        e: usize,
+        positions: &mut [DVec3],
+        input: &[DVec3],
+    ) -> bool {
+        let [a, b] = topo.edges()[e];
+        let (a, b) = (a as usize, b as usize);
+        if topo.kind(a) != VertexKind::Interior
+            || topo.kind(b) != VertexKind::Interior
+            || topo.edge_faces(e).len() != 2
+        {
+            return false;
+        }
+        let Some((pa, sa)) = self.far_point(mesh, topo, a, b, positions) else {
+            return false;
+        };
+        let Some((pb, sb)) = self.far_point(mesh, topo, b, a, positions) else {
+            return false;
+        };
+        let polyline = [pa, positions[a], positions[b], pb];
+        let na = along(&polyline, 1.0 / 3.0);
+        let nb = along(&polyline, 2.0 / 3.0);
+        let (xa, ya) = sa.tangent(na);
+        let (xb, yb) = sb.tangent(nb);
+        let (na, nb) = (sa.point(xa, ya), sb.point(xb, yb));
+        if !(na.is_finite() && nb.is_finite()) {
+            return false;
+        }
+        let old = positions[a].distance(positions[b]);
+        if na.distance(nb) <= old {
+            return false;
+        }
+        self.tester.begin(mesh, topo, &[a, b], positions, input);
+        let verdict = self.tester.apply(mesh, &[(a, na), (b, nb)], positions);
+        if verdict.keeps_quality() {
+            true
+        } else {
+            self.tester.undo(positions);
+            false
+        }
+    }
+
+    /// The point `p1` for end point `v` of the short edge `(v, w)`, and the
+    /// fitted surface at `v`.
+    fn far_point(
+        &mut self,
+        mesh: &Mesh,
+        topo: &Topology,
+        v: usize,
+        w: usize,
+        positions: &[DVec3],
+    ) -> Option<(DVec3, LocalSurface)> {
+        if !ordered_link(mesh, topo, v, &mut self.link) {
+            return None;
+        }
+        let surface = LocalSurface::at(mesh, topo, v, positions, &mut self.ring)?;
+        let m = self.link.len();
+        let i = self.link.iter().position(|&x| x as usize == w)?;
+        // Going counter-clockwise the link runs d .. w .. c, where d and c
+        // are the edge neighbours of v nearest to w on either side (the
+        // other ends of v's sides in the two faces on edge (v, w)).
+        let is_nb = |x: u32| topo.neighbors(v).binary_search(&x).is_ok();
+        let c = (1..m).map(|k| self.link[(i + k) % m]).find(|&x| is_nb(x))?;
+        let d = (1..m).map(|k| self.link[(i + m - k) % m]).find(|&x| is_nb(x))?;
+        let (cx, cy) = surface.tangent(positions[c as usize]);
+        let (dx, dy) = surface.tangent(positions[d as usize]);
+        // Bisect the counter-clockwise sweep from c to d: the sector without w.
+        let ac = cy.atan2(cx);
+        let mut sweep = dy.atan2(dx) - ac;
+        if sweep <= 0.0 {
+            sweep += TAU;
+        }
+        let (sy, sx) = (ac + 0.5 * sweep).sin_cos();
+        // Nearest crossing of the ray t (sx, sy), t > 0, with a link side.
+        let mut best: Option<(f64, DVec3)> = None;
+        for k in 0..m {
+            let (q0, q1) = (
+                positions[self.link[k] as usize],
+                positions[self.link[(k + 1) % m] as usize],
+            );
+            let (x0, y0) = surface.tangent(q0);
+            let (x1, y1) = surface.tangent(q1);
+            // Solve t (sx, sy) = (x0, y0) + s (x1 - x0, y1 - y0).
+            let (ex, ey) = (x1 - x0, y1 - y0);
+            let den = sx * ey - sy * ex;
+            if den.abs() < 1e-300 {
+                continue;
+            }
+            let t = (x0 * ey - y0 * ex) / den;
+            let s = (x0 * sy - y0 * sx) / den;
+            if t > 0.0 && (0.0..=1.0).contains(&s) && best.is_none_or(|(bt, _)| t < bt) {
+                best = Some((t, q0.lerp(q1, s)));
+            }
+        }
+        best.map(|(_, p)| (p, surface))
+    }
+}
+
+/// The point at `fraction` of the length along `polyline`.
+fn along(polyline: &[DVec3], fraction: f64) -> DVec3 {
+    let total: f64 = polyline.windows(2).map(|w| w[0].distance(w[1])).sum();
+    let mut left = fraction * total;
+    for w in polyline.windows(2) {
+        let l = w[0].distance(w[1]);
+        if left <= l && l > 0.0 {
+            return w[0].lerp(w[1], left / l);
+        }
+        left -= l;
+    }
+    polyline[polyline.len() - 1]
+}

@@ -1,0 +1,173 @@
+//! Twisted-quad fix (paper section 2.4; algorithm notes section 8).
+//!
+//! A quad `(v1 v2 v3 v4)` is twisted when the normals of its split
+//! triangles `(v1 v2 v3)` and `(v3 v4 v1)` are more than 90° apart. Twisted
+//! quads come in pairs sharing an edge: swapping the positions of that
+//! edge's two end points untwists both. A twisted quad with no twisted
+//! neighbour, or whose swap is refused, is handled by relocating its
+//! corners with the angle-based candidates of
+//! [`sharp_angle`](super::sharp_angle).
+//!
+//! Every move is tried and kept only when it makes nothing worse (see
+//! `MoveTester`): no face becomes inverted relative to the input, no quad
+//! becomes twisted, the number of twisted quads among the affected faces
+//! drops, and the number of inverted faces does not grow. Removing a
+//! twisted quad outranks the smallest angle: a swap may shrink it (the
+//! sharp-angle fix runs afterwards).
+//!
+//! Order: Gauss-Seidel, sequential, quads in ascending face order within a
+//! sweep (deterministic); a sweep rescans only the quads that were still
+//! twisted; the fix stops after a sweep that changes nothing, when none is
+//! left, or after `max_sweeps`. Only interior vertices move.
+
+use super::local::{MoveTester, Verdict, is_twisted};
+use super::sharp_angle::Relocator;
+use crate::mesh::{Mesh, Topology, VertexKind};
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// What the twisted-quad fix did.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TwistedStats {
+    /// Twisted quads before the fix.
+    pub found: u64,
+    /// Accepted swaps of an edge's end points.
+    pub swaps: u64,
+    /// Accepted single-vertex relocations.
+    pub relocations: u64,
+    /// Tried moves refused because they would have made something worse.
+    pub rejected: u64,
+    /// Sweeps run.
+    pub sweeps: u64,
+    /// Twisted quads after the fix.
+    pub remaining: u64,
+}
+
+fn twisted_quads(mesh: &Mesh, positions: &[DVec3]) -> Vec<u32> {
+    (0..mesh.num_faces() as u32)
+        .into_par_iter()
+        .with_min_len(4096)
+        .filter(|&f| is_twisted(mesh.face(f as usize), positions))
+        .collect()
+}
+
+/// Accepted when it removes a twisted quad and adds no defect.
+fn untwists(v: &Verdict) -> bool {
+    !v.new_defect && v.twisted.1 < v.twisted.0 && v.inverted.1 <= v.inverted.0
+}
+
+/// Untwists twisted quads by swapping the end points of an edge shared
+/// with another twisted quad, else by relocating a corner; at most
+/// `max_sweeps` sweeps. Moves vertices in `positions` in place (one entry
+/// per vertex; `input`, the input positions, likewise).
+pub fn fix_twisted_quads(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &mut [DVec3],
+    input: &[DVec3],
+    max_sweeps: u32,
+) -> TwistedStats {
+    let mut twisted = twisted_quads(mesh, positions);
+    let mut stats = TwistedStats {
+        found: twisted.len() as u64,
+        ..TwistedStats::default()
+    };
+    let mut tester = MoveTester::default();
+    let mut relocator = Relocator::default();
+    while !twisted.is_empty() && stats.sweeps < max_sweeps as u64 {
+        stats.sweeps += 1;
+        let mut changed = false;
+        for &f in &twisted {
+            let face = mesh.face(f as usize);
+            if !is_twisted(face, positions) {
+                continue; // untwisted by an earlier move of this sweep
+            }
+            if swap_with_twisted_neighbour(mesh, topo, f, positions, input, &mut tester, &mut stats)
+            {
+                changed = true;
+                continue;
+            }
+            // Relocate a corner: keep the first that untwists.
+            for j in 0..4 {
+                let v = face[j] as usize;
+                if topo.kind(v) != VertexKind::Interior {
+                    continue;
+                }
+                let before: u32 = count_twisted_around(mesh, topo, v, positions);
+                let saved = positions[v];
+                if relocator.relocate(mesh, topo, v, positions, input)
+                    && count_twisted_around(mesh, topo, v, positions) < before
+                {
+                    stats.relocations += 1;
+                    changed = true;
+                    break;
+                }
+                positions[v] = saved;
+                stats.rejected += 1;
+            }
+        }
+        let p: &[DVec3] = positions;
+        twisted.retain(|&f| is_twisted(mesh.face(f as usize), p));
+        if !changed {
+            break;
+        }
+    }
+    stats.remaining = twisted_quads(mesh, positions).len() as u64;
+    stats
+}
+
+fn count_twisted_around(mesh: &Mesh, topo: &Topology, v: usize, positions: &[DVec3]) -> u32 {
+    topo.vertex_faces(v)
+        .iter()
+        .filter(|&&f| is_twisted(mesh.face(f as usize), positions))
+        .count() as u32
+}
+
+/// Tries the swaps of quad `f`'s edges shared with another twisted quad, in
+/// corner order; keeps the first accepted one.
+fn swap_with_twisted_neighbour(
+    mesh: &Mesh,
+    topo: &Topology,
+    f: u32,
+    positions: &mut [DVec3],
+    input: &[DVec3],
+    tester: &mut MoveTester,
+    stats: &mut TwistedStats,
+) -> bool {
+    let face = mesh.face(f as usize);
+    for j in 0..4 {
+        let (a, b) = (face[j] as usize, face[(j + 1) % 4] as usize);
+        if topo.kind(a) != VertexKind::Interior || topo.kind(b) != VertexKind::Interior {
+            continue;
+        }
+        let Some(e) = edge_between(topo, a, b) else {
+            continue;
+        };
+        let shares_twisted = topo
+            .edge_faces(e)
+            .iter()
+            .any(|&g| g != f && is_twisted(mesh.face(g as usize), positions));
+        if !shares_twisted {
+            continue;
+        }
+        tester.begin(mesh, topo, &[a, b], positions, input);
+        let (pa, pb) = (positions[a], positions[b]);
+        let verdict = tester.apply(mesh, &[(a, pb), (b, pa)], positions);
+        if untwists(&verdict) {
+            stats.swaps += 1;
+            return true;
+        }
+        tester.undo(positions);
+        stats.rejected += 1;
+    }
+    false
+}
+
+/// The edge id joining `a` and `b`, if any.
+pub(crate) fn edge_between(topo: &Topology, a: usize, b: usize) -> Option<usize> {
+    let nb = topo.neighbors(a);
+    let i = nb.binary_search(&(b as u32)).ok()?;
+    Some(topo.vertex_edges(a)[i] as usize)
+}

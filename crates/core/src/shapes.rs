@@ -1,1 +1,0 @@
-//! Analytic test shapes as voxel-boundary quad meshes and marching-cubes triangle meshes.

@@ -1,0 +1,234 @@
+//! Analytic test shapes (sphere, torus, ellipsoid) with exact distance
+//! functions, and the meshes a segmentation pipeline makes of them: the
+//! welded quad boundary of a binary voxel mask ([`voxel_boundary_mesh`]) and
+//! its marching-cubes triangulation ([`marching_cubes_mesh`]).
+//!
+//! Everything is in voxel units: voxel `(i, j, k)` of a [`VoxelMask`] covers
+//! the unit cube whose lowest corner is `origin + (i, j, k)`, and meshes are
+//! built in the same coordinates as the shape, so
+//! [`rms_distance`]`(shape, mesh.positions())` measures how far a mesh lies
+//! from the true surface in voxels. Generation is deterministic.
+
+mod ellipsoid;
+mod marching_cubes;
+mod voxel;
+
+pub use marching_cubes::marching_cubes_mesh;
+pub use voxel::{VOXEL_MARGIN, VoxelMask, voxel_boundary_mesh, voxel_mask};
+
+use crate::mesh::Mesh;
+use glam::DVec3;
+use rayon::prelude::*;
+use std::f64::consts::PI;
+
+/// An analytic solid with a closed surface.
+pub trait Shape: Sync {
+    /// Whether `p` lies strictly inside the solid.
+    fn inside(&self, p: DVec3) -> bool;
+    /// Unsigned Euclidean distance from `p` to the surface.
+    fn distance(&self, p: DVec3) -> f64;
+    /// Volume of the solid.
+    fn volume(&self) -> f64;
+    /// Axis-aligned bounding box `(min, max)` of the solid.
+    fn bounds(&self) -> (DVec3, DVec3);
+}
+
+/// Ball of `radius` about `center`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sphere {
+    /// Centre.
+    pub center: DVec3,
+    /// Radius (> 0).
+    pub radius: f64,
+}
+
+impl Shape for Sphere {
+    fn inside(&self, p: DVec3) -> bool {
+        (p - self.center).length_squared() < self.radius * self.radius
+    }
+
+    fn distance(&self, p: DVec3) -> f64 {
+        ((p - self.center).length() - self.radius).abs()
+    }
+
+    fn volume(&self) -> f64 {
+        4.0 / 3.0 * PI * self.radius.powi(3)
+    }
+
+    fn bounds(&self) -> (DVec3, DVec3) {
+        (self.center - self.radius, self.center + self.radius)
+    }
+}
+
+/// Solid torus about the z axis through `center`: the points within `minor`
+/// of the circle of radius `major` in the plane `z = center.z`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Torus {
+    /// Centre of the hole.
+    pub center: DVec3,
+    /// Radius of the tube's centre circle (> `minor`).
+    pub major: f64,
+    /// Radius of the tube (> 0).
+    pub minor: f64,
+}
+
+impl Torus {
+    /// Distance from `p` to the tube's centre circle.
+    fn tube_distance(&self, p: DVec3) -> f64 {
+        let d = p - self.center;
+        let rho = (d.x * d.x + d.y * d.y).sqrt() - self.major;
+        (rho * rho + d.z * d.z).sqrt()
+    }
+}
+
+impl Shape for Torus {
+    fn inside(&self, p: DVec3) -> bool {
+        self.tube_distance(p) < self.minor
+    }
+
+    fn distance(&self, p: DVec3) -> f64 {
+        (self.tube_distance(p) - self.minor).abs()
+    }
+
+    fn volume(&self) -> f64 {
+        2.0 * PI * PI * self.major * self.minor * self.minor
+    }
+
+    fn bounds(&self) -> (DVec3, DVec3) {
+        let e = DVec3::new(self.major + self.minor, self.major + self.minor, self.minor);
+        (self.center - e, self.center + e)
+    }
+}
+
+/// Axis-aligned solid ellipsoid `sum ((p - center)_i / semi_axes_i)^2 < 1`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ellipsoid {
+    /// Centre.
+    pub center: DVec3,
+    /// Semi-axis lengths along x, y and z (each > 0).
+    pub semi_axes: DVec3,
+}
+
+impl Ellipsoid {
+    /// The point of the surface nearest to `p` (Eberly, "Distance from a
+    /// point to an ellipse, an ellipsoid, or a hyperellipsoid", 2013).
+    pub fn closest_point(&self, p: DVec3) -> DVec3 {
+        self.center + ellipsoid::closest_point(self.semi_axes, p - self.center)
+    }
+}
+
+impl Shape for Ellipsoid {
+    fn inside(&self, p: DVec3) -> bool {
+        ((p - self.center) / self.semi_axes).length_squared() < 1.0
+    }
+
+    fn distance(&self, p: DVec3) -> f64 {
+        p.distance(self.closest_point(p))
+    }
+
+    fn volume(&self) -> f64 {
+        4.0 / 3.0 * PI * self.semi_axes.x * self.semi_axes.y * self.semi_axes.z
+    }
+
+    fn bounds(&self) -> (DVec3, DVec3) {
+        (self.center - self.semi_axes, self.center + self.semi_axes)
+    }
+}
+
+/// Root-mean-square distance from `positions` to the surface of `shape`;
+/// 0 for no positions.
+pub fn rms_distance<S: Shape + ?Sized>(shape: &S, positions: &[DVec3]) -> f64 {
+    if positions.is_empty() {
+        return 0.0;
+    }
+    let sum: f64 = positions
+        .par_iter()
+        .map(|&p| {
+            let d = shape.distance(p);
+            d * d
+        })
+        .sum();
+    (sum / positions.len() as f64).sqrt()
+}
+
+/// Largest distance from `positions` to the surface of `shape`; 0 for no
+/// positions.
+pub fn max_distance<S: Shape + ?Sized>(shape: &S, positions: &[DVec3]) -> f64 {
+    positions
+        .par_iter()
+        .map(|&p| shape.distance(p))
+        .reduce(|| 0.0, f64::max)
+}
+
+/// Where the convenience generators put a shape's centre: a fixed
+/// non-integer point, so the shape is not symmetric on the voxel grid.
+pub const CENTER_OFFSET: DVec3 = DVec3::new(0.37, 0.21, 0.13);
+
+/// Sphere of `radius` voxels centred at [`CENTER_OFFSET`] and the welded
+/// quad boundary of its voxel mask.
+pub fn voxel_sphere(radius: f64) -> (Sphere, Mesh) {
+    let s = Sphere {
+        center: CENTER_OFFSET,
+        radius,
+    };
+    let m = voxel_boundary_mesh(&voxel_mask(&s));
+    (s, m)
+}
+
+/// Torus (axis z) centred at [`CENTER_OFFSET`] and the welded quad boundary
+/// of its voxel mask.
+pub fn voxel_torus(major: f64, minor: f64) -> (Torus, Mesh) {
+    let t = torus(major, minor);
+    let m = voxel_boundary_mesh(&voxel_mask(&t));
+    (t, m)
+}
+
+/// Ellipsoid with semi-axes `a`, `b`, `c` (along x, y, z) centred at
+/// [`CENTER_OFFSET`] and the welded quad boundary of its voxel mask.
+pub fn voxel_ellipsoid(a: f64, b: f64, c: f64) -> (Ellipsoid, Mesh) {
+    let e = ellipsoid(a, b, c);
+    let m = voxel_boundary_mesh(&voxel_mask(&e));
+    (e, m)
+}
+
+/// Sphere as in [`voxel_sphere`], meshed by [`marching_cubes_mesh`].
+pub fn mc_sphere(radius: f64) -> (Sphere, Mesh) {
+    let s = Sphere {
+        center: CENTER_OFFSET,
+        radius,
+    };
+    let m = marching_cubes_mesh(&voxel_mask(&s));
+    (s, m)
+}
+
+/// Torus as in [`voxel_torus`], meshed by [`marching_cubes_mesh`].
+pub fn mc_torus(major: f64, minor: f64) -> (Torus, Mesh) {
+    let t = torus(major, minor);
+    let m = marching_cubes_mesh(&voxel_mask(&t));
+    (t, m)
+}
+
+/// Ellipsoid as in [`voxel_ellipsoid`], meshed by [`marching_cubes_mesh`].
+pub fn mc_ellipsoid(a: f64, b: f64, c: f64) -> (Ellipsoid, Mesh) {
+    let e = ellipsoid(a, b, c);
+    let m = marching_cubes_mesh(&voxel_mask(&e));
+    (e, m)
+}
+
+fn torus(major: f64, minor: f64) -> Torus {
+    Torus {
+        center: CENTER_OFFSET,
+        major,
+        minor,
+    }
+}
+
+fn ellipsoid(a: f64, b: f64, c: f64) -> Ellipsoid {
+    Ellipsoid {
+        center: CENTER_OFFSET,
+        semi_axes: DVec3::new(a, b, c),
+    }
+}
+
+#[cfg(test)]
+mod tests;

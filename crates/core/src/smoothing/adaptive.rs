@@ -1,0 +1,181 @@
+//! Step 7: adaptive neighbourhoods (paper section 2.3, algorithm notes
+//! section 7).
+//!
+//! Starting from the 2-ring, a vertex's neighbourhood grows ring by ring
+//! while (a) the vertices of the next ring carry the vertex's own label
+//! (up to a tolerated fraction, with a margin, see [`agrees`]), (b) the
+//! standard deviation of the scale-free mean curvature `H l` over the grown
+//! set does not rise (up to a tolerance) and stays below a bound, (c) a fit
+//! reaching the next ring would not bias the projection by more than a bound
+//! (`rho^4 kappa^3 / 48`, the gap between a paraboloid and a sphere), and
+//! (d) `k < k_max`. The chosen neighbourhood is then thinned to at most
+//! `max_points` well-spread vertices ([`push_thinned`]) so a fit's cost does
+//! not grow with `k`.
+//! Connectivity never changes, so neighbourhoods are chosen once and reused
+//! by every adaptive pass.
+
+use super::label::{Label, agrees};
+use super::neighbourhood::{Neighbourhoods, push_thinned};
+use crate::mesh::{RingWalker, Topology};
+use glam::DVec3;
+use std::sync::atomic::{AtomicU8, Ordering};
+
+/// Beyond ring 2, rings are walked by [`RingWalker::grow_beam`] expanding
+/// at most this many vertices per ring: the candidates are a well-spread
+/// sample of each ring, so growth to ring `k` costs `O(k)`.
+pub const BEAM_WIDTH: usize = 12;
+
+/// How neighbourhoods may grow.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GrowthRule {
+    /// Largest ring, `>= 2`.
+    pub k_max: u32,
+    /// Most fitted points per vertex.
+    pub max_points: usize,
+    /// Upper bound on the standard deviation of `H l` over the set.
+    pub std_bound: f64,
+    /// Largest rise of that standard deviation a new ring may cause.
+    pub std_tolerance: f64,
+    /// Upper bound on the expected outward bias of one projection,
+    /// `rho^4 kappa^3 / 48`, in units of the mean edge length.
+    pub bias_bound: f64,
+    /// Mean edge length `l`.
+    pub edge_length: f64,
+    /// Label tolerances `t_H`, `t_K` (section 6).
+    pub tolerance_h: f64,
+    /// See `tolerance_h`.
+    pub tolerance_k: f64,
+    /// Margin of the label agreement test ([`agrees`]).
+    pub label_margin: f64,
+    /// Fraction of a ring's candidates that may disagree before growth
+    /// stops (0: any disagreeing candidate stops it, the paper's rule).
+    pub label_disagreement: f64,
+}
+
+/// Chosen neighbourhoods and the final ring size `k` of every vertex.
+#[derive(Debug, Clone)]
+pub struct AdaptiveNeighbourhoods {
+    /// Thinned neighbour lists.
+    pub hoods: Neighbourhoods,
+    /// Final ring size per vertex (0 for isolated vertices).
+    pub ring: Vec<u8>,
+}
+
+/// Running mean/variance of `H l` over a set.
+#[derive(Clone, Copy, Default)]
+struct Moments {
+    n: f64,
+    sum: f64,
+    sum2: f64,
+}
+
+impl Moments {
+    fn add(&mut self, x: f64) {
+        self.n += 1.0;
+        self.sum += x;
+        self.sum2 += x * x;
+    }
+    fn std(&self) -> f64 {
+        if self.n < 2.0 {
+            return 0.0;
+        }
+        let m = self.sum / self.n;
+        (self.sum2 / self.n - m * m).max(0.0).sqrt()
+    }
+}
+
+/// Grows every vertex's neighbourhood by the rule above. `labels` and
+/// `h_scaled` (`H l`) have one entry per vertex.
+pub fn adaptive_neighbourhoods(
+    topo: &Topology,
+    positions: &[DVec3],
+    labels: &[Label],
+    curvature: &[(f64, f64)],
+    h_scaled: &[f64],
+    kappa: &[f64],
+    rule: GrowthRule,
+) -> AdaptiveNeighbourhoods {
+    let ring: Vec<AtomicU8> = (0..topo.num_vertices()).map(|_| AtomicU8::new(0)).collect();
+    let hoods = Neighbourhoods::build(topo, |v, w, out| {
+        let k = grow(topo, v, w, positions, labels, curvature, h_scaled, kappa, rule);
+        ring[v].store(k as u8, Ordering::Relaxed);
+        push_thinned(w, rule.max_points, out);
+    });
+    AdaptiveNeighbourhoods {
+        hoods,
+        ring: ring.into_iter().map(AtomicU8::into_inner).collect(),
+    }
+}
+
+/// Grows the walk at `v`; returns the number of rings kept.
+#[allow(clippy::too_many_arguments)]
+fn grow(
+    topo: &Topology,
+    v: usize,
+    w: &mut RingWalker,
+    positions: &[DVec3],
+    labels: &[Label],
+    curvature: &[(f64, f64)],
+    h_scaled: &[f64],
+    kappa: &[f64],
+    rule: GrowthRule,
+) -> usize {
+    w.start(topo, v);
+    let mut m = Moments::default();
+    m.add(h_scaled[v]);
+    let mut kappa_sum = kappa[v];
+    for _ in 0..2 {
+        for &j in w.grow(topo) {
+            m.add(h_scaled[j as usize]);
+            kappa_sum += kappa[j as usize];
+        }
+    }
+    let centre = positions[v];
+    let mut s_k = m.std();
+    while w.rings() < rule.k_max as usize {
+        let candidates = w.grow_beam(topo, BEAM_WIDTH);
+        if candidates.is_empty() {
+            w.discard_last();
+            break;
+        }
+        let disagreeing = candidates
+            .iter()
+            .filter(|&&j| {
+                let (h, k) = curvature[j as usize];
+                let (l, th, tk) = (rule.edge_length, rule.tolerance_h, rule.tolerance_k);
+                !agrees(labels[v], h, k, l, th, tk, rule.label_margin)
+            })
+            .count();
+        let disagree = disagreeing as f64 > rule.label_disagreement * candidates.len() as f64;
+        if disagree {
+            w.discard_last();
+            break;
+        }
+        let mut grown = m;
+        let mut rho2 = 0.0;
+        let mut kappa_next = kappa_sum;
+        for &j in candidates {
+            grown.add(h_scaled[j as usize]);
+            kappa_next += kappa[j as usize];
+            rho2 += positions[j as usize].distance_squared(centre);
+        }
+        // Expected bias of a fit reaching this ring, in edge lengths.
+        let rho = (rho2 / candidates.len() as f64).sqrt();
+        let kap = kappa_next / grown.n / rule.edge_length;
+        let bias = rho.powi(4) * kap.powi(3) / 48.0 / rule.edge_length;
+        if bias > rule.bias_bound {
+            w.discard_last();
+            break;
+        }
+        let s_next = grown.std();
+        if !(s_next <= s_k + rule.std_tolerance && s_next <= rule.std_bound) {
+            w.discard_last();
+            break;
+        }
+        m = grown;
+        s_k = s_next;
+        kappa_sum = kappa_next;
+    }
+    // Rings 1 and 2 are always kept, even when a component is smaller.
+    w.rings()
+}

@@ -1,0 +1,133 @@
+//! Fitting neighbourhoods: for each vertex, the neighbours its quadric is
+//! fitted to, in one flat CSR array built once (connectivity never changes,
+//! so neither do the neighbourhoods).
+
+use crate::mesh::{RingWalker, Topology};
+use rayon::prelude::*;
+use std::cell::RefCell;
+
+/// Per-vertex neighbour lists in CSR form.
+#[derive(Debug, Clone, Default)]
+pub struct Neighbourhoods {
+    offsets: Vec<u32>,
+    indices: Vec<u32>,
+}
+
+thread_local! {
+    static WALKER: RefCell<RingWalker> = RefCell::new(RingWalker::default());
+}
+
+/// Vertices per parallel work item when building neighbourhoods.
+const CHUNK: usize = 1024;
+
+impl Neighbourhoods {
+    /// Neighbours of vertex `v`.
+    #[inline]
+    pub fn get(&self, v: usize) -> &[u32] {
+        &self.indices[self.offsets[v] as usize..self.offsets[v + 1] as usize]
+    }
+
+    /// Number of vertices covered.
+    pub fn len(&self) -> usize {
+        self.offsets.len().saturating_sub(1)
+    }
+
+    /// True when no vertex is covered.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Total number of stored neighbour entries.
+    pub fn total(&self) -> usize {
+        self.indices.len()
+    }
+
+    /// Builds the lists with `select(v, walker, out)`, which appends vertex
+    /// `v`'s neighbours to `out` using a thread-local [`RingWalker`]. Runs in
+    /// parallel; the result does not depend on the thread count.
+    pub fn build<F>(topo: &Topology, select: F) -> Neighbourhoods
+    where
+        F: Fn(usize, &mut RingWalker, &mut Vec<u32>) + Sync,
+    {
+        let n = topo.num_vertices();
+        let chunks: Vec<(Vec<u32>, Vec<u32>)> = (0..n.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let range = c * CHUNK..((c + 1) * CHUNK).min(n);
+                let mut lens = Vec::with_capacity(range.len());
+                let mut out = Vec::with_capacity(range.len() * 16);
+                WALKER.with(|w| {
+                    let mut w = w.borrow_mut();
+                    for v in range {
+                        let before = out.len();
+                        select(v, &mut w, &mut out);
+                        lens.push((out.len() - before) as u32);
+                    }
+                });
+                (lens, out)
+            })
+            .collect();
+        let total: usize = chunks.iter().map(|c| c.1.len()).sum();
+        let mut offsets = Vec::with_capacity(n + 1);
+        let mut indices = Vec::with_capacity(total);
+        offsets.push(0u32);
+        for (lens, out) in chunks {
+            for l in lens {
+                let last = *offsets.last().unwrap_or(&0);
+                offsets.push(last + l);
+            }
+            indices.extend_from_slice(&out);
+        }
+        Neighbourhoods { offsets, indices }
+    }
+
+    /// The 2-ring of every vertex, thinned to at most `max_points` (ring 1
+    /// kept whole when it fits).
+    pub fn two_ring(topo: &Topology, max_points: usize) -> Neighbourhoods {
+        Neighbourhoods::build(topo, |v, w, out| {
+            w.start(topo, v);
+            w.grow(topo);
+            w.grow(topo);
+            push_thinned(w, max_points, out);
+        })
+    }
+}
+
+/// Appends the walker's rings to `out`, at most `max_points` of them: inner
+/// rings are kept whole while they fit, and the remaining budget is shared
+/// among the outer rings in proportion to their sizes, each thinned by an
+/// even stride so the points stay spread around the vertex.
+pub fn push_thinned(w: &RingWalker, max_points: usize, out: &mut Vec<u32>) {
+    let all = w.found();
+    if all.len() <= max_points {
+        out.extend_from_slice(all);
+        return;
+    }
+    // Keep whole rings from the inside while they fit.
+    let mut kept_rings = 0;
+    let mut kept = 0;
+    while kept_rings < w.rings() && kept + w.ring(kept_rings + 1).len() <= max_points / 2 {
+        kept += w.ring(kept_rings + 1).len();
+        kept_rings += 1;
+    }
+    out.extend_from_slice(&all[..kept]);
+    let rest = &all[kept..];
+    let budget = max_points - kept;
+    // Spread the budget over the outer rings by their sizes.
+    let mut taken = 0usize;
+    let mut seen = 0usize;
+    for r in kept_rings + 1..=w.rings() {
+        let ring = w.ring(r);
+        seen += ring.len();
+        let quota = budget * seen / rest.len() - taken;
+        taken += quota;
+        if quota == 0 {
+            continue;
+        }
+        let step = ring.len() as f64 / quota as f64;
+        for q in 0..quota {
+            let idx = ((q as f64 + 0.5) * step) as usize;
+            out.push(ring[idx.min(ring.len() - 1)]);
+        }
+    }
+}

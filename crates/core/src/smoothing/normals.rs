@@ -1,0 +1,62 @@
+//! Step 1: area-weighted vertex normals (algorithm notes section 1).
+//!
+//! `n_i = normalize(sum_{f in F_i} A_f)` where `A_f` is the polygon's vector
+//! area ([`crate::mesh::vector_area`]), which already equals `area * normal`.
+
+use crate::mesh::{Mesh, Topology, vector_area};
+use glam::DVec3;
+use rayon::prelude::*;
+
+/// Vector area of every face, one entry per face.
+pub fn face_vector_areas(mesh: &Mesh, positions: &[DVec3]) -> Vec<DVec3> {
+    (0..mesh.num_faces())
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|f| vector_area(mesh.face(f), positions))
+        .collect()
+}
+
+/// Unit area-weighted normal of every vertex, one entry per vertex;
+/// `DVec3::ZERO` where the incident faces have no area (isolated or fully
+/// degenerate vertices), which later steps treat as "do not move".
+pub fn vertex_normals(mesh: &Mesh, topo: &Topology, positions: &[DVec3]) -> Vec<DVec3> {
+    let areas = face_vector_areas(mesh, positions);
+    vertex_normals_from_areas(topo, &areas)
+}
+
+/// Vertex normals from precomputed face vector areas.
+pub fn vertex_normals_from_areas(topo: &Topology, face_areas: &[DVec3]) -> Vec<DVec3> {
+    (0..topo.num_vertices())
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|v| {
+            let s: DVec3 = topo
+                .vertex_faces(v)
+                .iter()
+                .map(|&f| face_areas[f as usize])
+                .sum();
+            s.normalize_or_zero()
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pyramid_apex_normal_points_up() {
+        let p = vec![
+            DVec3::new(0.0, 0.0, 1.0),
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(0.0, 1.0, 0.0),
+            DVec3::new(-1.0, 0.0, 0.0),
+            DVec3::new(0.0, -1.0, 0.0),
+        ];
+        let m = Mesh::from_polygons(p, &[[0u32, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]]).unwrap();
+        let t = Topology::build(&m);
+        let n = vertex_normals(&m, &t, m.positions());
+        assert!((n[0] - DVec3::Z).length() < 1e-12);
+        assert!((n[1].length() - 1.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,90 @@
+//! Step 4: projection, the smoothing step (algorithm notes section 4).
+//!
+//! Each vertex moves along its normal onto its fitted quadric, `p_i' = p_i +
+//! g n_i`. Updates are Jacobi style: all new positions are computed from the
+//! old ones and written to a second buffer, so the result is deterministic
+//! and independent of the thread count.
+
+use super::frame::Frame;
+use super::neighbourhood::Neighbourhoods;
+use super::normals::vertex_normals;
+use super::quadric_fit::{FitKind, fit_quadric};
+use crate::mesh::{Mesh, Topology};
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// What one pass (or a sum of passes) did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct FitStats {
+    /// Fits that used the full quadric.
+    pub quadric: u64,
+    /// Fits that fell back to a plane.
+    pub plane_fallback: u64,
+    /// Vertices left in place because no fit was possible.
+    pub fixed_fallback: u64,
+    /// Largest distance a vertex moved.
+    pub max_displacement: f64,
+}
+
+impl FitStats {
+    fn merge(self, o: FitStats) -> FitStats {
+        FitStats {
+            quadric: self.quadric + o.quadric,
+            plane_fallback: self.plane_fallback + o.plane_fallback,
+            fixed_fallback: self.fixed_fallback + o.fixed_fallback,
+            max_displacement: self.max_displacement.max(o.max_displacement),
+        }
+    }
+
+    /// Adds another pass's counts (maximum of the displacements).
+    pub fn accumulate(&mut self, o: FitStats) {
+        *self = self.merge(o);
+    }
+}
+
+/// Per-vertex curvature `(H, K)` from the fits of a pass.
+pub type Curvatures = Vec<(f64, f64)>;
+
+/// One Jacobi pass: fits every movable vertex's neighbourhood in
+/// `positions` and writes the projected positions to `out` (immovable
+/// vertices are copied). Returns the fit statistics and, per vertex, the
+/// curvature of its fit (0 where it was not fitted).
+pub fn fit_pass(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &[DVec3],
+    hoods: &Neighbourhoods,
+    movable: &[bool],
+    out: &mut [DVec3],
+    curvature: &mut [(f64, f64)],
+) -> FitStats {
+    let normals = vertex_normals(mesh, topo, positions);
+    out.par_iter_mut()
+        .zip(curvature.par_iter_mut())
+        .enumerate()
+        .with_min_len(1024)
+        .map(|(v, (o, hk))| {
+            let p = positions[v];
+            let n = normals[v];
+            *o = p;
+            *hk = (0.0, 0.0);
+            let mut s = FitStats::default();
+            if !movable[v] || n == DVec3::ZERO {
+                return s;
+            }
+            let fit = fit_quadric(&Frame::new(p, n), positions, hoods.get(v));
+            match fit.kind {
+                FitKind::Quadric => s.quadric = 1,
+                FitKind::Plane => s.plane_fallback = 1,
+                FitKind::Fixed => s.fixed_fallback = 1,
+            }
+            *hk = fit.curvature();
+            let g = fit.height();
+            *o = p + g * n;
+            s.max_displacement = g.abs();
+            s
+        })
+        .reduce(FitStats::default, FitStats::merge)
+}
+

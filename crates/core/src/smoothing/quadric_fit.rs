@@ -1,0 +1,319 @@
+//! Step 3: weighted least-squares quadric fit (algorithm notes section 3).
+//!
+//! Fits `h(x, y) = a x^2 + b x y + c y^2 + e x + f y + g` to neighbours in a
+//! vertex's local [`Frame`] by solving the 6x6 normal equations
+//! `(M^T W M) beta = M^T W z` with an LDL^T factorisation in f64.
+//!
+//! Open choices, decided here:
+//! - Weights are Gaussian-like, `w_j ~ exp(-d_j^2 / (2 s^2))` ([`weight`]),
+//!   `d_j` the distance from the vertex and `s^2` the mean of `d_j^2` over
+//!   the neighbourhood, so the weighting is scale-free and adapts to the ring
+//!   size.
+//! - The vertex itself is not a fitted point (including it pulls `g` to 0
+//!   and smooths less).
+//! - Coordinates are divided by `s` before the fit, so pivots are comparable
+//!   across scales. A pivot below [`MIN_RELATIVE_PIVOT`] times the largest
+//!   diagonal entry, fewer than 6 points, or a fitted height beyond `s` (a
+//!   spike) falls back to a plane `e x + f y + g`; if that is also singular
+//!   the vertex stays in place ([`FitKind::Fixed`]).
+
+use super::frame::Frame;
+use glam::DVec3;
+
+/// Relative pivot below which a normal-equation system counts as singular.
+pub const MIN_RELATIVE_PIVOT: f64 = 1e-7;
+
+/// Most points one fit accepts; neighbourhoods are thinned to this size
+/// before fitting.
+pub const MAX_FIT_POINTS: usize = 512;
+
+/// Which model a fit ended up using.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FitKind {
+    /// The full quadric.
+    Quadric,
+    /// Fallback: a plane `e x + f y + g` (curvature 0).
+    Plane,
+    /// Fallback: no usable fit; the vertex does not move.
+    Fixed,
+}
+
+/// Result of one fit, in the frame's units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct QuadricFit {
+    /// Coefficients `[a, b, c, e, f, g]` of `h(x, y)`.
+    pub coeffs: [f64; 6],
+    /// Model used.
+    pub kind: FitKind,
+}
+
+impl QuadricFit {
+    /// The fit that leaves the vertex where it is.
+    pub const FIXED: QuadricFit = QuadricFit {
+        coeffs: [0.0; 6],
+        kind: FitKind::Fixed,
+    };
+
+    /// Height of the fitted surface above the vertex, `h(0, 0) = g`.
+    #[inline]
+    pub fn height(&self) -> f64 {
+        self.coeffs[5]
+    }
+
+    /// Mean and Gaussian curvature `(H, K)` of the fitted surface at
+    /// `(0, 0)` (algorithm notes section 5; convex is `H < 0` with outward
+    /// normals).
+    #[inline]
+    pub fn curvature(&self) -> (f64, f64) {
+        let [a, b, c, e, f, _] = self.coeffs;
+        let r = (1.0 + e * e + f * f).sqrt();
+        let (ee, ff, gg) = (1.0 + e * e, e * f, 1.0 + f * f);
+        let (l, m, n) = (2.0 * a / r, b / r, 2.0 * c / r);
+        let det = ee * gg - ff * ff;
+        let k = (l * n - m * m) / det;
+        let h = (ee * n - 2.0 * ff * m + gg * l) / (2.0 * det);
+        (h, k)
+    }
+}
+
+/// Fits a quadric to `positions[neighbours]` in `frame`. At most
+/// [`MAX_FIT_POINTS`] neighbours are used (the rest are ignored).
+pub fn fit_quadric(frame: &Frame, positions: &[DVec3], neighbours: &[u32]) -> QuadricFit {
+    let neighbours = &neighbours[..neighbours.len().min(MAX_FIT_POINTS)];
+    if neighbours.len() < 3 {
+        return QuadricFit::FIXED;
+    }
+    let sum_d2: f64 = neighbours
+        .iter()
+        .map(|&j| positions[j as usize].distance_squared(frame.origin))
+        .sum();
+    if !(sum_d2 > 0.0) {
+        return QuadricFit::FIXED;
+    }
+    let s = (sum_d2 / neighbours.len() as f64).sqrt();
+    let local = neighbours.iter().map(|&j| frame.to_local(positions[j as usize]));
+    fit_points(local, s)
+}
+
+/// Fits to points already in local coordinates; `s` is the neighbourhood
+/// scale (root mean square distance).
+pub fn fit_local(local: &[DVec3], s: f64) -> QuadricFit {
+    fit_points(local.iter().copied(), s)
+}
+
+/// The weight of a point at squared scaled distance `t = d^2 / s^2`: a
+/// rational approximation of the Gaussian `exp(-t / 2)` (its Taylor
+/// denominator to third order), as smooth and as local in the range that
+/// matters (`t <= 4`) at a fraction of the cost.
+#[inline]
+pub fn weight(t: f64) -> f64 {
+    let h = 0.5 * t;
+    1.0 / (1.0 + h * (1.0 + h * (0.5 + h * (1.0 / 6.0))))
+}
+
+fn fit_points(local: impl Iterator<Item = DVec3>, s: f64) -> QuadricFit {
+    let mut count = 0usize;
+    let inv_s = 1.0 / s;
+    // Weighted moments in scaled coordinates. The normal matrix of the
+    // monomials [x^2, xy, y^2, x, y, 1] only holds 15 distinct moments
+    // (x^i y^j, i + j <= 4); the right-hand side holds 6 more.
+    let mut mo = [0.0f64; 15];
+    let mut rz = [0.0f64; 6];
+    for l in local {
+        count += 1;
+        let (x, y, z) = (l.x * inv_s, l.y * inv_s, l.z * inv_s);
+        let w = weight(x * x + y * y + z * z);
+        let (wx, wy) = (w * x, w * y);
+        let (wxx, wxy, wyy) = (wx * x, wx * y, wy * y);
+        let (wxxx, wxxy, wxyy, wyyy) = (wxx * x, wxx * y, wxy * y, wyy * y);
+        mo[0] += w;
+        mo[1] += wx;
+        mo[2] += wy;
+        mo[3] += wxx;
+        mo[4] += wxy;
+        mo[5] += wyy;
+        mo[6] += wxxx;
+        mo[7] += wxxy;
+        mo[8] += wxyy;
+        mo[9] += wyyy;
+        mo[10] += wxxx * x;
+        mo[11] += wxxx * y;
+        mo[12] += wxxy * y;
+        mo[13] += wxyy * y;
+        mo[14] += wyyy * y;
+        rz[0] += wxx * z;
+        rz[1] += wxy * z;
+        rz[2] += wyy * z;
+        rz[3] += wx * z;
+        rz[4] += wy * z;
+        rz[5] += w * z;
+    }
+    let [m1, mx, my, mxx, mxy, myy, mxxx, mxxy, mxyy, myyy, m4x, m3x1y, m2x2y, m1x3y, m4y] = mo;
+    // Upper triangle, row-wise, of M^T W M for [x^2, xy, y^2, x, y, 1].
+    #[rustfmt::skip]
+    let ata = [
+        m4x, m3x1y, m2x2y, mxxx, mxxy, mxx,
+             m2x2y, m1x3y, mxxy, mxyy, mxy,
+                    m4y,   mxyy, myyy, myy,
+                           mxx,  mxy,  mx,
+                                 myy,  my,
+                                       m1,
+    ];
+    let atz = rz;
+    if count >= 6
+        && let Some(beta) = solve_packed::<6>(&ata, &atz)
+        && beta[5].abs() <= 1.0
+    {
+        return QuadricFit {
+            coeffs: [
+                beta[0] * inv_s,
+                beta[1] * inv_s,
+                beta[2] * inv_s,
+                beta[3],
+                beta[4],
+                beta[5] * s,
+            ],
+            kind: FitKind::Quadric,
+        };
+    }
+    // Plane fallback: the trailing 3x3 block (x, y, 1) of the same system.
+    let sub = [ata[15], ata[16], ata[17], ata[18], ata[19], ata[20]];
+    let rhs = [atz[3], atz[4], atz[5]];
+    if let Some(beta) = solve_packed::<3>(&sub, &rhs)
+        && beta[2].abs() <= 1.0
+    {
+        return QuadricFit {
+            coeffs: [0.0, 0.0, 0.0, beta[0], beta[1], beta[2] * s],
+            kind: FitKind::Plane,
+        };
+    }
+    QuadricFit::FIXED
+}
+
+/// Solves the symmetric system whose upper triangle is packed row-wise in
+/// `a` by LDL^T without pivoting; `None` when a pivot is below
+/// [`MIN_RELATIVE_PIVOT`] times the largest diagonal entry or not finite.
+fn solve_packed<const N: usize>(a: &[f64], b: &[f64; N]) -> Option<[f64; N]> {
+    // Unpack into a full matrix (small and on the stack).
+    let mut m = [[0.0f64; N]; N];
+    let mut k = 0;
+    for i in 0..N {
+        for j in i..N {
+            m[i][j] = a[k];
+            m[j][i] = a[k];
+            k += 1;
+        }
+    }
+    let max_diag = (0..N).map(|i| m[i][i]).fold(0.0f64, f64::max);
+    if !(max_diag > 0.0) || !max_diag.is_finite() {
+        return None;
+    }
+    let tol = MIN_RELATIVE_PIVOT * max_diag;
+    // In-place LDL^T: L strictly below the diagonal, D on it.
+    for j in 0..N {
+        let mut d = m[j][j];
+        for p in 0..j {
+            d -= m[j][p] * m[j][p] * m[p][p];
+        }
+        if !(d > tol) {
+            return None;
+        }
+        m[j][j] = d;
+        for i in j + 1..N {
+            let mut s = m[i][j];
+            for p in 0..j {
+                s -= m[i][p] * m[j][p] * m[p][p];
+            }
+            m[i][j] = s / d;
+        }
+    }
+    let mut x = *b;
+    for i in 0..N {
+        for p in 0..i {
+            x[i] -= m[i][p] * x[p];
+        }
+    }
+    for i in 0..N {
+        x[i] /= m[i][i];
+    }
+    for i in (0..N).rev() {
+        for p in i + 1..N {
+            x[i] -= m[p][i] * x[p];
+        }
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid_points(h: impl Fn(f64, f64) -> f64) -> Vec<DVec3> {
+        let mut pts = Vec::new();
+        for j in -2i32..=2 {
+            for i in -2i32..=2 {
+                if i != 0 || j != 0 {
+                    let (x, y) = (i as f64 * 0.7, j as f64 * 0.7);
+                    pts.push(DVec3::new(x, y, h(x, y)));
+                }
+            }
+        }
+        pts
+    }
+
+    #[test]
+    fn recovers_an_exact_quadric() {
+        let q = |x: f64, y: f64| 0.3 * x * x - 0.2 * x * y + 0.1 * y * y + 0.05 * x - 0.07 * y + 0.4;
+        let pts = grid_points(q);
+        let s = (pts.iter().map(|p| p.length_squared()).sum::<f64>() / pts.len() as f64).sqrt();
+        let fit = fit_local(&pts, s);
+        assert_eq!(fit.kind, FitKind::Quadric);
+        let want = [0.3, -0.2, 0.1, 0.05, -0.07, 0.4];
+        for (got, want) in fit.coeffs.iter().zip(want) {
+            assert!((got - want).abs() < 1e-10, "{:?}", fit.coeffs);
+        }
+    }
+
+    #[test]
+    fn sphere_cap_curvature_matches_radius() {
+        // Points on a sphere of radius 10 below the tangent plane at the top.
+        let r = 10.0;
+        let pts = grid_points(|x, y| (r * r - x * x - y * y).sqrt() - r);
+        let s = (pts.iter().map(|p| p.length_squared()).sum::<f64>() / pts.len() as f64).sqrt();
+        let fit = fit_local(&pts, s);
+        let (h, k) = fit.curvature();
+        assert!((h + 1.0 / r).abs() < 2e-3, "H = {h}");
+        assert!((k - 1.0 / (r * r)).abs() < 2e-4, "K = {k}");
+    }
+
+    #[test]
+    fn collinear_points_fall_back_without_nan() {
+        let pts: Vec<DVec3> = (1..8).map(|i| DVec3::new(i as f64, 0.0, 0.1 * i as f64)).collect();
+        let fit = fit_local(&pts, 3.0);
+        assert_ne!(fit.kind, FitKind::Quadric);
+        assert!(fit.coeffs.iter().all(|c| c.is_finite()));
+        let two = [DVec3::new(1.0, 0.0, 0.0), DVec3::new(0.0, 1.0, 0.0)];
+        assert_eq!(fit_local(&two, 1.0).kind, FitKind::Fixed);
+    }
+
+    #[test]
+    fn spike_does_not_jump() {
+        // A vertex far above a flat ring: the fitted height must stay within
+        // the neighbourhood scale.
+        let pts = grid_points(|_, _| -50.0);
+        let s = (pts.iter().map(|p| p.length_squared()).sum::<f64>() / pts.len() as f64).sqrt();
+        let fit = fit_local(&pts, s);
+        assert!(fit.height().abs() <= s + 1e-9);
+    }
+
+    #[test]
+    fn ldl_matches_direct_solution() {
+        let a = [4.0, 1.0, 0.5, 3.0, 0.2, 2.0];
+        let x = solve_packed::<3>(&a, &[1.0, 2.0, 3.0]).unwrap();
+        let m = [[4.0, 1.0, 0.5], [1.0, 3.0, 0.2], [0.5, 0.2, 2.0]];
+        for i in 0..3 {
+            let r: f64 = (0..3).map(|j| m[i][j] * x[j]).sum();
+            assert!((r - [1.0, 2.0, 3.0][i]).abs() < 1e-12);
+        }
+    }
+}

@@ -1,0 +1,132 @@
+//! Flags for the main parameters, applied on top of `--params FILE.json`.
+//! Each flag names a field of [`Params`]; its default is the field's default
+//! (or the file's value), so no default is restated here.
+
+use meshsmooth_core::Params;
+use meshsmooth_core::params::{BoundaryRule, Method};
+use serde::de::DeserializeOwned;
+
+/// Parameter flags of `meshsmooth smooth`; `None` keeps the value from the
+/// parameter file or the default.
+#[derive(Debug, Default, clap::Args)]
+pub struct ParamFlags {
+    /// Smoother: `wang-yu` (quadric fitting, Wang & Yu 2009), or the
+    /// baselines `taubin` and `laplacian` [params: method].
+    #[arg(long, value_name = "METHOD", value_parser = serde_name::<Method>)]
+    method: Option<Method>,
+    /// Initial smoothing passes with 2-ring fits [params: initial_passes].
+    #[arg(long, value_name = "N")]
+    initial_passes: Option<u32>,
+    /// Adaptive smoothing passes [params: adaptive_passes].
+    #[arg(long, value_name = "N")]
+    adaptive_passes: Option<u32>,
+    /// Largest ring an adaptive neighbourhood may grow to [params: k_max].
+    #[arg(long, value_name = "K")]
+    k_max: Option<u32>,
+    /// Most points used in one quadric fit [params: max_fit_points].
+    #[arg(long, value_name = "N")]
+    max_fit_points: Option<u32>,
+    /// Flatness tolerance on |H| times the mean edge length
+    /// [params: tolerance_h].
+    #[arg(long, value_name = "T")]
+    tolerance_h: Option<f64>,
+    /// Flatness tolerance on |K| times the squared mean edge length
+    /// [params: tolerance_k].
+    #[arg(long, value_name = "T")]
+    tolerance_k: Option<f64>,
+    /// Boundary vertices: `fixed` or `normal_only` [params: boundary].
+    #[arg(long, value_name = "RULE", value_parser = serde_name::<BoundaryRule>)]
+    boundary: Option<BoundaryRule>,
+    /// Do not restore the enclosed volume at the end
+    /// [params: preserve_volume = false].
+    #[arg(long)]
+    no_preserve_volume: bool,
+    /// Skip the mesh-quality fixes [params: quality.enabled = false].
+    #[arg(long)]
+    no_quality: bool,
+    /// Triangle-split angle (degrees) below which the sharp-angle fix acts
+    /// [params: quality.sharp_angle_deg].
+    #[arg(long, value_name = "DEG")]
+    sharp_angle_deg: Option<f64>,
+    /// Iterations of the baseline smoothers [params: baseline.iterations].
+    #[arg(long, value_name = "N")]
+    iterations: Option<u32>,
+    /// Laplacian step of the baselines [params: baseline.lambda].
+    #[arg(long, value_name = "L")]
+    lambda: Option<f64>,
+    /// Taubin's negative step [params: baseline.mu].
+    #[arg(long, value_name = "MU", allow_negative_numbers = true)]
+    mu: Option<f64>,
+}
+
+/// Parses a value by its serde name, so the flag accepts exactly what the
+/// JSON parameters accept.
+fn serde_name<T: DeserializeOwned>(s: &str) -> Result<T, String> {
+    serde_json::from_value(serde_json::Value::String(s.to_owned())).map_err(|e| e.to_string())
+}
+
+impl ParamFlags {
+    /// Overrides the fields of `p` whose flag was given.
+    pub fn apply(&self, p: &mut Params) {
+        fn set<T: Copy>(field: &mut T, flag: Option<T>) {
+            if let Some(v) = flag {
+                *field = v;
+            }
+        }
+        set(&mut p.method, self.method);
+        set(&mut p.initial_passes, self.initial_passes);
+        set(&mut p.adaptive_passes, self.adaptive_passes);
+        set(&mut p.k_max, self.k_max);
+        set(&mut p.max_fit_points, self.max_fit_points);
+        set(&mut p.tolerance_h, self.tolerance_h);
+        set(&mut p.tolerance_k, self.tolerance_k);
+        set(&mut p.boundary, self.boundary);
+        set(&mut p.quality.sharp_angle_deg, self.sharp_angle_deg);
+        set(&mut p.baseline.iterations, self.iterations);
+        set(&mut p.baseline.lambda, self.lambda);
+        set(&mut p.baseline.mu, self.mu);
+        if self.no_preserve_volume {
+            p.preserve_volume = false;
+        }
+        if self.no_quality {
+            p.quality.enabled = false;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flags_override_only_what_is_given() {
+        let mut p = Params {
+            k_max: 5,
+            ..Params::default()
+        };
+        let flags = ParamFlags {
+            method: Some(Method::Taubin),
+            mu: Some(-0.6),
+            no_quality: true,
+            ..ParamFlags::default()
+        };
+        flags.apply(&mut p);
+        assert_eq!(p.method, Method::Taubin);
+        assert_eq!(p.baseline.mu, -0.6);
+        assert!(!p.quality.enabled);
+        assert_eq!(p.k_max, 5);
+        assert_eq!(p.initial_passes, Params::default().initial_passes);
+        assert!(p.preserve_volume);
+    }
+
+    #[test]
+    fn names_are_the_json_names() {
+        assert_eq!(serde_name::<Method>("wang-yu"), Ok(Method::WangYu));
+        assert_eq!(
+            serde_name::<BoundaryRule>("normal_only"),
+            Ok(BoundaryRule::NormalOnly)
+        );
+        let e = serde_name::<Method>("wangyu").unwrap_err();
+        assert!(e.contains("wang-yu") && e.contains("taubin"), "{e}");
+    }
+}
