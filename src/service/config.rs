@@ -22,7 +22,8 @@ pub struct ServeArgs {
     pub workers: Option<NonZeroUsize>,
 
     /// Jobs that may wait for a worker; when the queue is full, uploads are
-    /// refused with 503 and `Retry-After`.
+    /// refused with 503 and `Retry-After`. At most this many plus the
+    /// worker count uploads are received at once.
     #[arg(long, env = "MESHSMOOTH_QUEUE_CAPACITY", default_value_t = 16)]
     pub queue_capacity: usize,
 

@@ -114,6 +114,7 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
             timeout: args.upload_timeout,
             parse_slots: Arc::new(Semaphore::new(workers)),
         }),
+        upload_slots: Arc::new(Semaphore::new(args.queue_capacity + workers)),
         request_timeout: args.request_timeout,
         test_hooks: args.enable_test_hooks,
         shutdown: stopping,

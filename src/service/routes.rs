@@ -25,7 +25,7 @@ use serde_json::Value;
 use std::convert::Infallible;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::sync::watch;
+use tokio::sync::{Semaphore, watch};
 use utoipa::openapi::OpenApi as OpenApiDoc;
 use utoipa::{IntoParams, OpenApi};
 use utoipa_axum::router::OpenApiRouter;
@@ -44,6 +44,9 @@ pub struct AppState {
     pub jobs: Jobs,
     /// Upload limits and the parse pool.
     pub upload: Arc<UploadConfig>,
+    /// Uploads being received or parsed at once (queue capacity plus
+    /// workers): bounds the memory held by uploads not yet queued.
+    pub upload_slots: Arc<Semaphore>,
     /// Time limit of the short routes.
     pub request_timeout: Duration,
     /// Honour [`TEST_HOOK_HEADER`].
@@ -61,12 +64,7 @@ impl AppState {
         Uuid::parse_str(id)
             .ok()
             .and_then(|id| self.jobs.get(&id))
-            .ok_or_else(|| {
-                Problem::new(
-                    "job_not_found",
-                    format!("no job `{id}`: it never existed, was deleted or has expired"),
-                )
-            })
+            .ok_or_else(|| job_not_found(id))
     }
 
     fn test_hook(&self, headers: &HeaderMap) -> Result<Option<TestHook>, Problem> {
@@ -94,8 +92,19 @@ impl AppState {
 
     /// Reads an upload and queues it as a job.
     async fn submit(&self, req: Request) -> Result<Arc<Job>, Problem> {
-        // Refuse before reading a body that could not be queued anyway.
+        // Refuse before reading a body that could not be queued anyway, and
+        // bound the uploads held in memory at once.
         self.jobs.check_room()?;
+        let _slot = self.upload_slots.clone().try_acquire_owned().map_err(|_| {
+            let slots = self.jobs.settings().queue_capacity + self.jobs.settings().workers;
+            metrics::counter!("meshsmooth_jobs_rejected_total", "reason" => "uploads_full")
+                .increment(1);
+            Problem::new(
+                "queue_full",
+                format!("too many uploads in progress ({slots}); retry shortly"),
+            )
+            .with_retry_after(1)
+        })?;
         let hook = self.test_hook(req.headers())?;
         let request_id = request_id(req.headers());
         let upload = read_upload(req, &self.upload).await?;
@@ -108,6 +117,13 @@ impl AppState {
             hook,
         })
     }
+}
+
+fn job_not_found(id: &str) -> Problem {
+    Problem::new(
+        "job_not_found",
+        format!("no job `{id}`: it never existed, was deleted or has expired"),
+    )
 }
 
 fn request_id(headers: &HeaderMap) -> String {
@@ -497,12 +513,8 @@ async fn delete_job(
             (StatusCode::ACCEPTED, Json(JobView::of(&job, &state.jobs))).into_response()
         }
         Some(Deleted::Forgotten) => StatusCode::NO_CONTENT.into_response(),
-        None => {
-            return Err(state
-                .job(&id)
-                .err()
-                .unwrap_or_else(|| Problem::internal("job vanished")));
-        }
+        // Deleted or expired meanwhile.
+        None => return Err(state.job(&id).err().unwrap_or_else(|| job_not_found(&id))),
     })
 }
 

@@ -62,7 +62,7 @@ pub async fn read_upload(req: Request<Body>, config: &UploadConfig) -> Result<Up
     if let Some(claimed) = content_length(req.headers())
         && claimed > config.max_body_bytes()
     {
-        return Err(too_large(claimed, config.max_upload_bytes));
+        return Err(too_large(claimed, config.max_body_bytes()));
     }
     let query = QueryInput::parse(req.uri(), config)?;
     // Parameters in the query are checked before the body is read.
@@ -99,6 +99,11 @@ pub async fn read_upload(req: Request<Body>, config: &UploadConfig) -> Result<Up
             read_multipart(req, config).await
         } else {
             let format = raw_format(&essence)?;
+            if let Some(claimed) = content_length(req.headers())
+                && claimed > config.max_upload_bytes
+            {
+                return Err(too_large(claimed, config.max_upload_bytes));
+            }
             let bytes = read_body(req.into_body(), config.max_upload_bytes).await?;
             Ok(RawUpload {
                 bytes,

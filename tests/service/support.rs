@@ -3,8 +3,8 @@
 
 #![allow(dead_code)] // Each test module uses a different part.
 
-use hyper::body::Bytes;
 use http_body_util::{BodyExt, Full};
+use hyper::body::Bytes;
 use hyper::body::Incoming;
 use hyper::{Method, Request, StatusCode};
 use hyper_util::rt::TokioIo;
@@ -17,12 +17,27 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::net::TcpStream;
 
-/// A running `meshsmooth serve` process, killed on drop.
+/// A running `meshsmooth serve` process, killed on drop. Derefs to a
+/// [`Client`] of it.
 pub struct Server {
     child: Child,
-    /// The bound loopback address.
-    pub addr: SocketAddr,
+    client: Client,
     stderr: Arc<Mutex<String>>,
+}
+
+/// An HTTP/1.1 client of a server (one connection per request).
+#[derive(Debug, Clone, Copy)]
+pub struct Client {
+    /// The server's address.
+    pub addr: SocketAddr,
+}
+
+impl std::ops::Deref for Server {
+    type Target = Client;
+
+    fn deref(&self) -> &Client {
+        &self.client
+    }
 }
 
 impl Server {
@@ -54,7 +69,9 @@ impl Server {
         });
         let mut stdout = BufReader::new(child.stdout.take().expect("stdout"));
         let mut line = String::new();
-        stdout.read_line(&mut line).expect("read the listening line");
+        stdout
+            .read_line(&mut line)
+            .expect("read the listening line");
         let addr = line
             .trim()
             .strip_prefix("meshsmooth listening on http://")
@@ -73,9 +90,14 @@ impl Server {
         });
         Server {
             child,
-            addr,
+            client: Client { addr },
             stderr,
         }
+    }
+
+    /// A client that can outlive this borrow (for spawned tasks).
+    pub fn client(&self) -> Client {
+        self.client
     }
 
     /// The process id.
@@ -120,7 +142,9 @@ impl Server {
             .expect("VmHWM line");
         kib * 1024
     }
+}
 
+impl Client {
     /// Sends a request and reads the whole answer.
     pub async fn send(&self, req: Req) -> Resp {
         let response = self.send_streaming(req).await;
@@ -142,10 +166,9 @@ impl Server {
     /// Sends a request; the body is left to the caller.
     pub async fn send_streaming(&self, req: Req) -> hyper::Response<Incoming> {
         let stream = TcpStream::connect(self.addr).await.expect("connect");
-        let (mut sender, connection) =
-            hyper::client::conn::http1::handshake(TokioIo::new(stream))
-                .await
-                .expect("handshake");
+        let (mut sender, connection) = hyper::client::conn::http1::handshake(TokioIo::new(stream))
+            .await
+            .expect("handshake");
         tokio::spawn(connection);
         let mut builder = Request::builder()
             .method(req.method)
@@ -154,7 +177,9 @@ impl Server {
         for (name, value) in req.headers {
             builder = builder.header(name, value);
         }
-        let request = builder.body(Full::new(Bytes::from(req.body))).expect("request");
+        let request = builder
+            .body(Full::new(Bytes::from(req.body)))
+            .expect("request");
         sender.send_request(request).await.expect("send request")
     }
 
@@ -381,10 +406,7 @@ impl Resp {
         assert_eq!(p["status"], status, "{p}");
         assert_eq!(p["type"], format!("urn:meshsmooth:problem:{code}"), "{p}");
         assert!(p["title"].as_str().is_some_and(|t| !t.is_empty()), "{p}");
-        assert!(
-            p["detail"].as_str().is_some_and(|d| !d.is_empty()),
-            "{p}"
-        );
+        assert!(p["detail"].as_str().is_some_and(|d| !d.is_empty()), "{p}");
         p
     }
 }
@@ -479,6 +501,9 @@ pub fn small_sphere() -> (String, usize, usize) {
 pub fn job_id(r: &Resp) -> String {
     assert_eq!(r.status, StatusCode::ACCEPTED, "{}", r.text());
     let id = r.json()["id"].as_str().unwrap().to_owned();
-    assert_eq!(r.header("location"), Some(format!("/v1/jobs/{id}").as_str()));
+    assert_eq!(
+        r.header("location"),
+        Some(format!("/v1/jobs/{id}").as_str())
+    );
     id
 }

@@ -32,8 +32,8 @@ pub enum BoundaryRule {
     /// stays exactly where the crop put it.
     #[default]
     Fixed,
-    /// Boundary vertices are fitted with their one-sided neighbourhood and
-    /// move along their normal only.
+    /// Boundary vertices move along their normal only, onto a plane fitted
+    /// to their one-sided neighbourhood (a quadric would extrapolate).
     NormalOnly,
 }
 
@@ -88,7 +88,8 @@ pub struct Params {
     /// Growth stops when a quadric fitted out to the next ring would bias
     /// the projection outward by more than this many mean edge lengths: a
     /// paraboloid fitted to a sphere of curvature `kappa` over radius `rho`
-    /// sits `rho^4 kappa^3 / 48` above it. Default 0.04; range 0..=10.
+    /// sits `rho^4 kappa^3 / 48` above it; `kappa` is estimated from the
+    /// heights of the ring over the tangent plane. Default 0.06; range 0..=10.
     pub bias_bound: f64,
     /// What boundary vertices do. Default `fixed`.
     pub boundary: BoundaryRule,
@@ -116,7 +117,7 @@ impl Default for Params {
             label_disagreement: 0.25,
             std_tolerance: 0.005,
             curvature_std_bound: 0.05,
-            bias_bound: 0.04,
+            bias_bound: 0.06,
             boundary: BoundaryRule::Fixed,
             preserve_volume: true,
             quality: QualityParams::default(),
@@ -242,7 +243,12 @@ impl Params {
             ("label_margin", self.label_margin, 10.0, "0..=10"),
             ("label_disagreement", self.label_disagreement, 1.0, "0..=1"),
             ("std_tolerance", self.std_tolerance, 10.0, "0..=10"),
-            ("curvature_std_bound", self.curvature_std_bound, 100.0, "0..=100"),
+            (
+                "curvature_std_bound",
+                self.curvature_std_bound,
+                100.0,
+                "0..=100",
+            ),
             ("bias_bound", self.bias_bound, 10.0, "0..=10"),
         ] {
             check_f64(field, v, (0.0..=hi).contains(&v), allowed)?;
@@ -297,7 +303,7 @@ mod tests {
         assert_eq!(p.label_disagreement, 0.25);
         assert_eq!(p.std_tolerance, 0.005);
         assert_eq!(p.curvature_std_bound, 0.05);
-        assert_eq!(p.bias_bound, 0.04);
+        assert_eq!(p.bias_bound, 0.06);
         assert_eq!(p.boundary, BoundaryRule::Fixed);
         assert!(p.preserve_volume);
         assert_eq!(

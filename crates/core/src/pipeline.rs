@@ -2,7 +2,12 @@
 //! one entry point shared by the CLI and the service.
 
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length};
-use crate::params::{BoundaryRule, ParamError, Params};
+use crate::params::{BoundaryRule, Method, ParamError, Params};
+use crate::quality::{improve, measure_stage, mesh_statistics};
+use crate::report::QualityReport;
+use crate::report::{
+    LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
+};
 use crate::smoothing::adaptive::{
     AdaptiveNeighbourhoods, BEAM_WIDTH, GrowthRule, adaptive_neighbourhoods,
 };
@@ -10,13 +15,14 @@ use crate::smoothing::curvature::vertex_curvatures;
 use crate::smoothing::initial::smooth_passes;
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::neighbourhood::{Neighbourhoods, push_thinned};
+use crate::smoothing::normals::vertex_normals;
 use crate::smoothing::project::{Curvatures, FitStats};
 use crate::smoothing::volume::restore_volume;
-use std::time::Instant;
-use crate::report::QualityReport;
+use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::DVec3;
 use serde::Serialize;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
 use thiserror::Error;
 
 /// Pipeline stages, in order, as reported to [`Progress`].
@@ -214,11 +220,7 @@ pub fn wang_yu(
         .map(|&(h, k)| label(h, k, l, params.tolerance_h, params.tolerance_k))
         .collect();
     let h_scaled: Vec<f64> = hk.iter().map(|&(h, _)| h * l).collect();
-    // Largest principal curvature magnitude, scaled by l.
-    let kappa: Vec<f64> = hk
-        .iter()
-        .map(|&(h, k)| (h.abs() + (h * h - k).max(0.0).sqrt()) * l)
-        .collect();
+    let normals = vertex_normals(mesh, topo, &positions);
     let rule = GrowthRule {
         k_max: params.k_max,
         max_points,
@@ -232,7 +234,7 @@ pub fn wang_yu(
         label_disagreement: params.label_disagreement,
     };
     let AdaptiveNeighbourhoods { hoods, ring } =
-        adaptive_neighbourhoods(topo, &positions, &labels, &hk, &h_scaled, &kappa, rule);
+        adaptive_neighbourhoods(topo, &positions, &labels, &hk, &h_scaled, &normals, rule);
     timings_ms.push((Stage::Label, ms(t)));
     progress.update(Stage::Label, 1.0);
 
@@ -272,7 +274,13 @@ fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
-/// Smooths `mesh` with `params`. Never changes connectivity.
+/// Smooths `mesh` with `params` and measures the result. Never changes
+/// connectivity: the output has one position per input vertex, in order.
+///
+/// Stages: analyse (topology, input measures), then for `wang-yu` initial
+/// smoothing, labelling, adaptive smoothing with volume restoration and the
+/// quality fixes; for the baselines the baseline smoother (and the quality
+/// fixes). The report's hashes are left for the caller, who has the bytes.
 pub fn run(
     mesh: &Mesh,
     params: &Params,
@@ -280,23 +288,170 @@ pub fn run(
     cancel: &AtomicBool,
 ) -> Result<SmoothOutput, SmoothError> {
     params.validate()?;
+    let start = Instant::now();
+    let span = tracing::info_span!("smooth", vertices = mesh.num_vertices(), faces = mesh.num_faces(), method = ?params.method);
+    let _enter = span.enter();
+    let mut timings = Vec::new();
+    let input = mesh.positions();
+    let fraction = params.quality.short_edge_fraction;
+
+    let t = Instant::now();
+    progress.update(Stage::Analyse, 0.0);
     let topo = Topology::build(mesh);
     let movable = movable_mask(&topo, params.boundary);
-    let r = wang_yu(mesh, &topo, &movable, params, progress, cancel)?;
-    let displacement = r
-        .adaptive
+    let two_ring = Neighbourhoods::two_ring(&topo, params.max_fit_points as usize);
+    let (input_curvature, _) = vertex_curvatures(mesh, &topo, input, &two_ring);
+    drop(two_ring);
+    let mut report = QualityReport::new(mesh_statistics(mesh, &topo), Reproducibility::new(params));
+    report.stages.input = Some(measure_stage(
+        mesh,
+        &topo,
+        input,
+        input,
+        Some(&input_curvature),
+        fraction,
+    ));
+    timings.push((Stage::Analyse, ms(t)));
+    progress.update(Stage::Analyse, 1.0);
+    check(cancel)?;
+
+    let (mut positions, curvature, labels) = match params.method {
+        Method::WangYu => {
+            let r = {
+                let _s = tracing::info_span!("wang_yu").entered();
+                wang_yu(mesh, &topo, &movable, params, progress, cancel)?
+            };
+            let t = Instant::now();
+            report.stages.initial = Some(measure_stage(
+                mesh, &topo, &r.initial, input, None, fraction,
+            ));
+            report.stages.adaptive = Some(measure_stage(
+                mesh,
+                &topo,
+                &r.adaptive,
+                input,
+                Some(&r.curvature),
+                fraction,
+            ));
+            report.wang_yu = Some(WangYuSummary {
+                labels: LabelCounts::from_labels(&r.labels),
+                ring_size_histogram: ring_size_histogram(&r.ring),
+                initial_fits: r.initial_fits.into(),
+                adaptive_fits: r.adaptive_fits.into(),
+                volume_offset: r.volume_offset,
+            });
+            timings.extend(r.timings_ms.iter().copied());
+            timings.push((Stage::Report, ms(t)));
+            let labels = r.labels.iter().map(|&l| l as u8).collect();
+            (r.adaptive, r.curvature, labels)
+        }
+        Method::Laplacian | Method::Taubin => {
+            let t = Instant::now();
+            let positions = {
+                let _s = tracing::info_span!("baseline").entered();
+                baseline(mesh, &topo, &movable, params, cancel)?
+            };
+            timings.push((Stage::Initial, ms(t)));
+            report.stages.initial = Some(measure_stage(
+                mesh, &topo, &positions, input, None, fraction,
+            ));
+            (positions, Vec::new(), Vec::new())
+        }
+    };
+    check(cancel)?;
+
+    if params.quality.enabled {
+        let t = Instant::now();
+        let _s = tracing::info_span!("quality").entered();
+        progress.update(Stage::Quality, 0.0);
+        report.quality_fixes = Some(improve(mesh, &topo, &mut positions, input, &params.quality));
+        timings.push((Stage::Quality, ms(t)));
+        progress.update(Stage::Quality, 1.0);
+    }
+    check(cancel)?;
+
+    let t = Instant::now();
+    let final_curvature = (!curvature.is_empty()).then_some(curvature.as_slice());
+    report.stages.final_stage = Some(measure_stage(
+        mesh,
+        &topo,
+        &positions,
+        input,
+        final_curvature,
+        fraction,
+    ));
+    timings.push((Stage::Report, ms(t)));
+    progress.update(Stage::Report, 1.0);
+
+    let displacement = positions
         .iter()
-        .zip(mesh.positions())
+        .zip(input)
         .map(|(a, b)| a.distance(*b))
         .collect();
+    report.timings = timings
+        .iter()
+        .map(|&(stage, ms)| StageTiming {
+            stage: stage.name().to_string(),
+            ms,
+        })
+        .collect();
+    report.total_ms = ms(start);
     Ok(SmoothOutput {
         per_vertex: PerVertex {
-            label: r.labels.iter().map(|&l| l as u8).collect(),
-            mean_curvature: r.curvature.iter().map(|c| c.0).collect(),
-            gaussian_curvature: r.curvature.iter().map(|c| c.1).collect(),
+            label: labels,
+            mean_curvature: curvature.iter().map(|c| c.0).collect(),
+            gaussian_curvature: curvature.iter().map(|c| c.1).collect(),
             displacement,
         },
-        positions: r.adaptive,
-        report: QualityReport::default(),
+        positions,
+        report,
     })
+}
+
+/// Measures a mesh without smoothing it: the report's `input` stage (with
+/// curvature from 2-ring fits) and the mesh statistics.
+pub fn measure(mesh: &Mesh, params: &Params) -> QualityReport {
+    let topo = Topology::build(mesh);
+    let two_ring = Neighbourhoods::two_ring(&topo, params.max_fit_points as usize);
+    let (curvature, _) = vertex_curvatures(mesh, &topo, mesh.positions(), &two_ring);
+    let mut report = QualityReport::new(mesh_statistics(mesh, &topo), Reproducibility::new(params));
+    report.stages.input = Some(measure_stage(
+        mesh,
+        &topo,
+        mesh.positions(),
+        mesh.positions(),
+        Some(&curvature),
+        params.quality.short_edge_fraction,
+    ));
+    report
+}
+
+/// Runs the baseline smoother `params.method` (Laplacian or Taubin).
+fn baseline(
+    mesh: &Mesh,
+    topo: &Topology,
+    movable: &[bool],
+    params: &Params,
+    cancel: &AtomicBool,
+) -> Result<Vec<DVec3>, Cancelled> {
+    let b = &params.baseline;
+    match params.method {
+        Method::Taubin => taubin_smooth(
+            topo,
+            movable,
+            mesh.positions(),
+            b.iterations,
+            b.lambda,
+            b.mu,
+            cancel,
+        ),
+        _ => laplacian_smooth(
+            topo,
+            movable,
+            mesh.positions(),
+            b.iterations,
+            b.lambda,
+            cancel,
+        ),
+    }
 }

@@ -27,6 +27,7 @@
 //! NORMAL attributes are recomputed (area-weighted, across seams that had
 //! the same normal before). JSON object keys come out sorted.
 
+use super::weld::{FastMap, FastState};
 use super::{IoError, ReadLimits, VertexResults};
 use crate::error::MeshError;
 use crate::mesh::Mesh;
@@ -1205,17 +1206,20 @@ fn check_f32(positions: &[DVec3]) -> Result<(), IoError> {
 /// normal (seams split only for texture coordinates stay smooth, hard
 /// edges stay hard). A vertex without area keeps its original normal.
 fn vertex_normals(positions: &[DVec3], target: &NormalTarget) -> Vec<DVec3> {
+    // Keyed by the f32 values the file will hold.
+    let bits = |x: f64| (x as f32 + 0.0).to_bits();
     let key = |p: DVec3, n: DVec3| {
         [
-            (p.x + 0.0).to_bits(),
-            (p.y + 0.0).to_bits(),
-            (p.z + 0.0).to_bits(),
-            n.x.to_bits(),
-            n.y.to_bits(),
-            n.z.to_bits(),
+            bits(p.x),
+            bits(p.y),
+            bits(p.z),
+            bits(n.x),
+            bits(n.y),
+            bits(n.z),
         ]
     };
-    let mut group_of: HashMap<[u64; 6], u32> = HashMap::with_capacity(positions.len());
+    let mut group_of: FastMap<[u32; 6], u32> =
+        FastMap::with_capacity_and_hasher(positions.len(), FastState::new());
     let groups: Vec<u32> = positions
         .iter()
         .zip(&target.original)

@@ -33,7 +33,11 @@ pub(crate) fn triangle_cosines(a: DVec3, b: DVec3, c: DVec3) -> [f64; 3] {
     let ab = b - a;
     let bc = c - b;
     let ca = a - c;
-    [cos_between(ab, -ca), cos_between(bc, -ab), cos_between(ca, -bc)]
+    [
+        cos_between(ab, -ca),
+        cos_between(bc, -ab),
+        cos_between(ca, -bc),
+    ]
 }
 
 /// True when a face repeats a corner index (its angles are undefined).
@@ -80,7 +84,11 @@ pub(crate) fn min_angle_cos(a: DVec3, b: DVec3, c: DVec3) -> f64 {
     let ab = b - a;
     let bc = c - b;
     let ca = a - c;
-    let (x, y, z) = (ab.length_squared(), bc.length_squared(), ca.length_squared());
+    let (x, y, z) = (
+        ab.length_squared(),
+        bc.length_squared(),
+        ca.length_squared(),
+    );
     if x <= y && x <= z {
         cos_from(-ca.dot(bc), z, y) // at c
     } else if y <= z {
@@ -240,10 +248,7 @@ impl Verdict {
     /// No new defect and either fewer defects or a strictly larger smallest
     /// angle, with no more defects than before.
     pub fn improves(&self) -> bool {
-        if self.new_defect
-            || self.inverted.1 > self.inverted.0
-            || self.twisted.1 > self.twisted.0
-        {
+        if self.new_defect || self.inverted.1 > self.inverted.0 || self.twisted.1 > self.twisted.0 {
             return false;
         }
         self.inverted.1 < self.inverted.0
@@ -291,8 +296,11 @@ impl MoveTester {
             let start = self.input_normals.len();
             self.starts.push(start as u32);
             push_split_normals(face, input, &mut self.input_normals);
-            self.before
-                .push(face_state_with(face, positions, &self.input_normals[start..]));
+            self.before.push(face_state_with(
+                face,
+                positions,
+                &self.input_normals[start..],
+            ));
         }
     }
 
@@ -580,7 +588,7 @@ pub(crate) fn uninvert_steps(
             let g = (positions[a] - positions[b]).cross(m);
             let (gx, gy) = (g.dot(surface.frame.u), g.dot(surface.frame.v));
             let gg = gx * gx + gy * gy;
-            if !(gg > 0.0) {
+            if gg.is_nan() || gg <= 0.0 {
                 continue;
             }
             let t = -s / gg;

@@ -287,7 +287,8 @@ fn edge_pass(topo: &Topology, positions: &[DVec3], threshold: f64) -> (u64, u64)
             let mut boundary = 0u64;
             for e in range {
                 let [a, b] = edges[e];
-                short += (positions[a as usize].distance_squared(positions[b as usize]) < t2) as u64;
+                short +=
+                    (positions[a as usize].distance_squared(positions[b as usize]) < t2) as u64;
                 boundary += (topo.edge_faces(e).len() == 1) as u64;
             }
             (short, boundary)

@@ -54,8 +54,14 @@ pub fn improve(
     }
     let sweeps = params.max_sweeps;
     let twisted = fix_twisted_quads(mesh, topo, positions, input, sweeps);
-    let short_edges =
-        fix_short_edges(mesh, topo, positions, input, params.short_edge_fraction, sweeps);
+    let short_edges = fix_short_edges(
+        mesh,
+        topo,
+        positions,
+        input,
+        params.short_edge_fraction,
+        sweeps,
+    );
     let sharp_angles =
         fix_sharp_angles(mesh, topo, positions, input, params.sharp_angle_deg, sweeps);
     QualityFixStats {

@@ -137,8 +137,7 @@ fn count_sharp(mesh: &Mesh, positions: &[DVec3], cos_limit: f64) -> u64 {
         .with_min_len(4096)
         .filter(|&f| {
             let face = mesh.face(f);
-            !has_repeated_corner(face)
-                && super::local::max_split_cos(face, positions) > cos_limit
+            !has_repeated_corner(face) && super::local::max_split_cos(face, positions) > cos_limit
         })
         .count() as u64
 }

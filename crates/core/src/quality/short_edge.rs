@@ -187,7 +187,9 @@ impl Fixer {
         // other ends of v's sides in the two faces on edge (v, w)).
         let is_nb = |x: u32| topo.neighbors(v).binary_search(&x).is_ok();
         let c = (1..m).map(|k| self.link[(i + k) % m]).find(|&x| is_nb(x))?;
-        let d = (1..m).map(|k| self.link[(i + m - k) % m]).find(|&x| is_nb(x))?;
+        let d = (1..m)
+            .map(|k| self.link[(i + m - k) % m])
+            .find(|&x| is_nb(x))?;
         let (cx, cy) = surface.tangent(positions[c as usize]);
         let (dx, dy) = surface.tangent(positions[d as usize]);
         // Bisect the counter-clockwise sweep from c to d: the sector without w.

@@ -90,8 +90,8 @@ pub fn fix_twisted_quads(
                 continue;
             }
             // Relocate a corner: keep the first that untwists.
-            for j in 0..4 {
-                let v = face[j] as usize;
+            for &corner in &face[..4] {
+                let v = corner as usize;
                 if topo.kind(v) != VertexKind::Interior {
                     continue;
                 }

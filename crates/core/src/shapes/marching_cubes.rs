@@ -11,7 +11,7 @@
 //! This is the classic case table with the "separate inside corners"
 //! resolution of ambiguous faces (no holes).
 
-use super::voxel::{RankedSet, VoxelMask};
+use super::voxel::{RankedSet, RowBreaks, VoxelMask};
 use crate::mesh::Mesh;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -118,40 +118,50 @@ pub fn marching_cubes_mesh(mask: &VoxelMask) -> Mesh {
         3 * ((((v[2] + 1) as u64) * ey + (v[1] + 1) as u64) * ex + (v[0] + 1) as u64) + a as u64
     };
     let edges: [(usize, usize); NUM_EDGES] = std::array::from_fn(edge_start);
-    // Spreads a column's 4 bits (y, z) = (0,0), (1,0), (0,1), (1,1) onto
-    // the corners with x = 0.
-    let spread =
-        |col: u32| (col & 1) | (col >> 1 & 1) << 2 | (col >> 2 & 1) << 4 | (col >> 3 & 1) << 6;
+    let breaks = RowBreaks::new(mask);
     let layers: Vec<Vec<[u64; 3]>> = (-1..nz as i64)
         .into_par_iter()
         .map(|k| {
             let mut tris = Vec::new();
+            let mut merged = Vec::new();
+            let mut emit = |i: i64, j: i64| {
+                let mut case = 0usize;
+                for c in 0..8 {
+                    let inside = mask.get(i + (c & 1), j + (c >> 1 & 1), k + (c >> 2 & 1));
+                    case |= usize::from(inside) << c;
+                }
+                for t in &table[case] {
+                    tris.push(t.map(|e| {
+                        let (c, a) = edges[e as usize];
+                        let v = [
+                            i + (c & 1) as i64,
+                            j + (c >> 1 & 1) as i64,
+                            k + (c >> 2 & 1) as i64,
+                        ];
+                        edge_key(v, a)
+                    }));
+                }
+            };
             for j in -1..ny as i64 {
-                let column = |i: i64| {
-                    u32::from(mask.get(i, j, k))
-                        | u32::from(mask.get(i, j + 1, k)) << 1
-                        | u32::from(mask.get(i, j, k + 1)) << 2
-                        | u32::from(mask.get(i, j + 1, k + 1)) << 3
+                // Between merged breaks the four voxel rows of this cell row
+                // are constant: there a cell is cut only when the rows
+                // differ, and the cells astride a break are always visited.
+                breaks.merged(
+                    &[(j, k), (j + 1, k), (j, k + 1), (j + 1, k + 1)],
+                    &mut merged,
+                );
+                let Some(&first) = merged.first() else {
+                    continue;
                 };
-                let mut left = spread(column(-1));
-                for i in -1..nx as i64 {
-                    let right = spread(column(i + 1));
-                    let case = (left | right << 1) as usize;
-                    left = right;
-                    if case == 0 || case == 255 {
-                        continue;
+                emit(i64::from(first) - 1, j);
+                for w in merged.windows(2) {
+                    let (a, b) = (i64::from(w[0]), i64::from(w[1]));
+                    let inside = [(j, k), (j + 1, k), (j, k + 1), (j + 1, k + 1)]
+                        .map(|(y, z)| mask.get(a, y, z));
+                    if inside.iter().any(|&v| v != inside[0]) {
+                        (a..b - 1).for_each(|i| emit(i, j));
                     }
-                    for t in &table[case] {
-                        tris.push(t.map(|e| {
-                            let (c, a) = edges[e as usize];
-                            let v = [
-                                i + (c & 1) as i64,
-                                j + (c >> 1 & 1) as i64,
-                                k + (c >> 2 & 1) as i64,
-                            ];
-                            edge_key(v, a)
-                        }));
-                    }
+                    emit(b - 1, j);
                 }
             }
             tris
@@ -182,4 +192,104 @@ pub fn marching_cubes_mesh(mask: &VoxelMask) -> Mesh {
         .collect();
     Mesh::new(positions, face_offsets, face_vertices)
         .expect("a marching-cubes surface is a valid mesh")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::IVec3;
+    use std::collections::BTreeMap;
+
+    /// Every cell of the padded grid, welded through an ordered map.
+    fn brute_force(mask: &VoxelMask) -> Mesh {
+        let [nx, ny, nz] = mask.dims().map(|n| n as i64);
+        let table = case_table();
+        let mut tris = Vec::new();
+        for k in -1..nz {
+            for j in -1..ny {
+                for i in -1..nx {
+                    let mut case = 0;
+                    for c in 0..8 {
+                        let v = [i + (c & 1), j + (c >> 1 & 1), k + (c >> 2 & 1)];
+                        case |= usize::from(mask.get(v[0], v[1], v[2])) << c;
+                    }
+                    for t in &table[case] {
+                        tris.push(t.map(|e| {
+                            let (c, a) = edge_start(e as usize);
+                            let v = [
+                                i + (c & 1) as i64,
+                                j + (c >> 1 & 1) as i64,
+                                k + (c >> 2 & 1) as i64,
+                            ];
+                            (v[2], v[1], v[0], a)
+                        }));
+                    }
+                }
+            }
+        }
+        let mut ids = BTreeMap::new();
+        for t in &tris {
+            for &e in t {
+                ids.insert(e, 0u32);
+            }
+        }
+        for (n, id) in ids.values_mut().enumerate() {
+            *id = n as u32;
+        }
+        let positions = ids
+            .keys()
+            .map(|&(z, y, x, a)| {
+                let mut p = mask.voxel_center(x, y, z);
+                p[a] += 0.5;
+                p
+            })
+            .collect();
+        let faces: Vec<[u32; 3]> = tris.iter().map(|t| t.map(|e| ids[&e])).collect();
+        Mesh::from_polygons(positions, &faces).unwrap()
+    }
+
+    #[test]
+    fn fast_scan_matches_brute_force() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rand = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for dims in [[9, 7, 6], [1, 5, 3], [13, 2, 11], [17, 15, 12]] {
+            for density in [0.15, 0.5, 0.85, 1.0] {
+                let bits: Vec<bool> = (0..dims[0] * dims[1] * dims[2])
+                    .map(|_| rand() < density)
+                    .collect();
+                let mask = VoxelMask::from_fn(IVec3::new(2, -5, 1), dims, |i, j, k| {
+                    bits[(k * dims[1] + j) * dims[0] + i]
+                });
+                assert_eq!(marching_cubes_mesh(&mask), brute_force(&mask));
+            }
+        }
+    }
+
+    #[test]
+    fn table_has_classic_case_sizes() {
+        let t = case_table();
+        assert!(t[0].is_empty() && t[255].is_empty());
+        // One corner: a triangle; two adjacent corners: a quad.
+        assert_eq!(t[1].len(), 1);
+        assert_eq!(t[0b11].len(), 2);
+        // Two corners diagonal on a face (ambiguous): kept apart.
+        assert_eq!(t[0b1001].len(), 2);
+        // Four corners of a face: a quad.
+        assert_eq!(t[0b1111].len(), 2);
+        // The triangles use exactly the edges whose ends differ.
+        for (case, tris) in t.iter().enumerate() {
+            let used: u32 = tris.iter().flatten().fold(0, |m, &e| m | 1 << e);
+            let cut = (0..NUM_EDGES).fold(0u32, |m, e| {
+                let (c, a) = edge_start(e);
+                let differs = (case >> c & 1) != (case >> (c | 1 << a) & 1);
+                m | u32::from(differs) << e
+            });
+            assert_eq!(used, cut, "case {case}");
+        }
+    }
 }

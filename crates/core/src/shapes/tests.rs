@@ -324,3 +324,115 @@ fn shapes_sizes() {
         );
     }
 }
+
+/// Deterministic pseudo-random masks: sparse, dense, and blobs with long
+/// runs, in grids of awkward sizes.
+fn random_masks() -> Vec<VoxelMask> {
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut rand = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut masks = Vec::new();
+    for dims in [[9, 7, 6], [1, 5, 3], [13, 2, 11], [17, 15, 12]] {
+        for density in [0.15, 0.5, 0.85] {
+            let bits: Vec<bool> = (0..dims[0] * dims[1] * dims[2])
+                .map(|_| rand() < density)
+                .collect();
+            masks.push(VoxelMask::from_fn(IVec3::new(-3, 1, 0), dims, |i, j, k| {
+                bits[(k * dims[1] + j) * dims[0] + i]
+            }));
+        }
+        let c = DVec3::new(rand(), rand(), rand())
+            * DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
+        let r = 0.4 * dims.iter().copied().min().unwrap_or(1) as f64 + 1.0;
+        masks.push(VoxelMask::from_fn(IVec3::ZERO, dims, |i, j, k| {
+            let p = DVec3::new(i as f64, j as f64, k as f64);
+            p.distance(c) < r || (i + 2 * j) % 7 == 0
+        }));
+    }
+    masks
+}
+
+#[test]
+fn fast_voxel_boundary_matches_brute_force() {
+    use std::collections::BTreeMap;
+    for mask in random_masks() {
+        let [nx, ny, nz] = mask.dims().map(|n| n as i64);
+        let mut quads: Vec<[[i64; 3]; 4]> = Vec::new();
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    if !mask.get(i, j, k) {
+                        continue;
+                    }
+                    // -x, +x, -y, +y, -z, +z with corners anticlockwise
+                    // seen from outside.
+                    let sides: [([i64; 3], [[i64; 3]; 4]); 6] = [
+                        ([-1, 0, 0], [[0, 0, 0], [0, 0, 1], [0, 1, 1], [0, 1, 0]]),
+                        ([1, 0, 0], [[1, 0, 0], [1, 1, 0], [1, 1, 1], [1, 0, 1]]),
+                        ([0, -1, 0], [[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]]),
+                        ([0, 1, 0], [[0, 1, 0], [0, 1, 1], [1, 1, 1], [1, 1, 0]]),
+                        ([0, 0, -1], [[0, 0, 0], [0, 1, 0], [1, 1, 0], [1, 0, 0]]),
+                        ([0, 0, 1], [[0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]]),
+                    ];
+                    for (d, corners) in sides {
+                        if !mask.get(i + d[0], j + d[1], k + d[2]) {
+                            quads.push(corners.map(|c| [i + c[0], j + c[1], k + c[2]]));
+                        }
+                    }
+                }
+            }
+        }
+        let mut ids = BTreeMap::new();
+        for q in &quads {
+            for c in q {
+                ids.insert([c[2], c[1], c[0]], 0u32);
+            }
+        }
+        for (n, id) in ids.values_mut().enumerate() {
+            *id = n as u32;
+        }
+        let o = mask.origin().as_dvec3();
+        let positions = ids
+            .keys()
+            .map(|c| o + DVec3::new(c[2] as f64, c[1] as f64, c[0] as f64))
+            .collect();
+        let faces: Vec<[u32; 4]> = quads
+            .iter()
+            .map(|q| q.map(|c| ids[&[c[2], c[1], c[0]]]))
+            .collect();
+        let expected = Mesh::from_polygons(positions, &faces).unwrap();
+        assert_eq!(voxel_boundary_mesh(&mask), expected);
+    }
+}
+
+#[test]
+fn fast_voxel_mask_matches_per_voxel_tests() {
+    let shapes: Vec<Box<dyn Shape>> = vec![
+        Box::new(Sphere {
+            center: DVec3::new(0.5, 0.5, 0.5),
+            radius: 9.0,
+        }),
+        Box::new(Sphere {
+            center: CENTER_OFFSET,
+            radius: 17.3,
+        }),
+        Box::new(torus(13.0, 4.5)),
+        Box::new(ellipsoid(21.0, 9.0, 5.5)),
+    ];
+    for shape in shapes {
+        let mask = voxel_mask(shape.as_ref());
+        let o = mask.origin();
+        let brute = VoxelMask::from_fn(o, mask.dims(), |i, j, k| {
+            shape.inside(mask.voxel_center(i as i64, j as i64, k as i64))
+        });
+        assert_eq!(mask, brute);
+        let (lo, hi) = shape.bounds();
+        assert!(o.as_dvec3().cmple(lo - 2.0).all());
+        let top = o.as_dvec3() + DVec3::from(mask.dims().map(|n| n as f64));
+        assert!(top.cmpge(hi + 2.0).all());
+    }
+}

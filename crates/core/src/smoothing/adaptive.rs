@@ -84,20 +84,23 @@ impl Moments {
     }
 }
 
-/// Grows every vertex's neighbourhood by the rule above. `labels` and
-/// `h_scaled` (`H l`) have one entry per vertex.
+/// Grows every vertex's neighbourhood by the rule above. `labels`,
+/// `curvature` (`(H, K)`), `h_scaled` (`H l`) and unit `normals` have one
+/// entry per vertex, all from `positions`.
 pub fn adaptive_neighbourhoods(
     topo: &Topology,
     positions: &[DVec3],
     labels: &[Label],
     curvature: &[(f64, f64)],
     h_scaled: &[f64],
-    kappa: &[f64],
+    normals: &[DVec3],
     rule: GrowthRule,
 ) -> AdaptiveNeighbourhoods {
     let ring: Vec<AtomicU8> = (0..topo.num_vertices()).map(|_| AtomicU8::new(0)).collect();
     let hoods = Neighbourhoods::build(topo, |v, w, out| {
-        let k = grow(topo, v, w, positions, labels, curvature, h_scaled, kappa, rule);
+        let k = grow(
+            topo, v, w, positions, normals, labels, curvature, h_scaled, rule,
+        );
         ring[v].store(k as u8, Ordering::Relaxed);
         push_thinned(w, rule.max_points, out);
     });
@@ -114,23 +117,22 @@ fn grow(
     v: usize,
     w: &mut RingWalker,
     positions: &[DVec3],
+    normals: &[DVec3],
     labels: &[Label],
     curvature: &[(f64, f64)],
     h_scaled: &[f64],
-    kappa: &[f64],
     rule: GrowthRule,
 ) -> usize {
     w.start(topo, v);
     let mut m = Moments::default();
     m.add(h_scaled[v]);
-    let mut kappa_sum = kappa[v];
     for _ in 0..2 {
         for &j in w.grow(topo) {
             m.add(h_scaled[j as usize]);
-            kappa_sum += kappa[j as usize];
         }
     }
     let centre = positions[v];
+    let normal = normals[v];
     let mut s_k = m.std();
     while w.rings() < rule.k_max as usize {
         let candidates = w.grow_beam(topo, BEAM_WIDTH);
@@ -138,32 +140,38 @@ fn grow(
             w.discard_last();
             break;
         }
+        let (l, th, tk) = (rule.edge_length, rule.tolerance_h, rule.tolerance_k);
         let disagreeing = candidates
             .iter()
             .filter(|&&j| {
                 let (h, k) = curvature[j as usize];
-                let (l, th, tk) = (rule.edge_length, rule.tolerance_h, rule.tolerance_k);
                 !agrees(labels[v], h, k, l, th, tk, rule.label_margin)
             })
             .count();
-        let disagree = disagreeing as f64 > rule.label_disagreement * candidates.len() as f64;
-        if disagree {
+        if disagreeing as f64 > rule.label_disagreement * candidates.len() as f64 {
             w.discard_last();
             break;
         }
         let mut grown = m;
-        let mut rho2 = 0.0;
-        let mut kappa_next = kappa_sum;
+        let (mut bend, mut radius2) = (0.0f64, 0.0);
         for &j in candidates {
             grown.add(h_scaled[j as usize]);
-            kappa_next += kappa[j as usize];
-            rho2 += positions[j as usize].distance_squared(centre);
+            let d = positions[j as usize] - centre;
+            let z = d.dot(normal);
+            let r2 = (d.length_squared() - z * z).max(0.0);
+            radius2 += r2;
+            if r2 > 0.0 {
+                bend = bend.max(z.abs() / r2);
+            }
         }
-        // Expected bias of a fit reaching this ring, in edge lengths.
-        let rho = (rho2 / candidates.len() as f64).sqrt();
-        let kap = kappa_next / grown.n / rule.edge_length;
-        let bias = rho.powi(4) * kap.powi(3) / 48.0 / rule.edge_length;
-        if bias > rule.bias_bound {
+        // A candidate at height `z` over the tangent plane and radius `rho`
+        // implies a normal curvature `2 z / rho^2`; the largest over the ring
+        // estimates `kappa_max`, and a fit out to the ring's mean radius
+        // then sits `rho^4 kappa^3 / 48` above the surface.
+        let rho2 = radius2 / candidates.len() as f64;
+        let kappa = 2.0 * bend;
+        let bias = rho2 * rho2 * kappa.powi(3) / 48.0;
+        if bias > rule.bias_bound * l {
             w.discard_last();
             break;
         }
@@ -174,7 +182,6 @@ fn grow(
         }
         m = grown;
         s_k = s_next;
-        kappa_sum = kappa_next;
     }
     // Rings 1 and 2 are always kept, even when a component is smaller.
     w.rings()

@@ -54,7 +54,9 @@ mod tests {
     fn frame_is_orthonormal_and_round_trips() {
         let n = DVec3::new(1.0, 2.0, -0.5).normalize();
         let f = Frame::new(DVec3::new(3.0, 1.0, 2.0), n);
-        assert!(f.u.dot(f.w).abs() < 1e-14 && f.v.dot(f.w).abs() < 1e-14 && f.u.dot(f.v).abs() < 1e-14);
+        assert!(
+            f.u.dot(f.w).abs() < 1e-14 && f.v.dot(f.w).abs() < 1e-14 && f.u.dot(f.v).abs() < 1e-14
+        );
         assert!((f.u.cross(f.v) - f.w).length() < 1e-14, "right-handed");
         let q = DVec3::new(-1.0, 0.5, 7.0);
         assert!((f.to_world(f.to_local(q)) - q).length() < 1e-12);

@@ -37,7 +37,11 @@ pub fn label(h: f64, k: f64, l: f64, t_h: f64, t_k: f64) -> Label {
             return Label::Minimal;
         }
     }
-    if hl < 0.0 { Label::Convex } else { Label::Concave }
+    if hl < 0.0 {
+        Label::Convex
+    } else {
+        Label::Concave
+    }
 }
 
 /// Whether a vertex with curvature `(h, k)` is compatible with label `of`:
@@ -51,7 +55,11 @@ pub fn agrees(of: Label, h: f64, k: f64, l: f64, t_h: f64, t_k: f64, margin: f64
     }
     let hl = h * l;
     let kl = k * l * l;
-    let mk = if t_h > 0.0 { margin * t_k / t_h } else { margin };
+    let mk = if t_h > 0.0 {
+        margin * t_k / t_h
+    } else {
+        margin
+    };
     match of {
         Label::Flat => hl.abs() <= t_h + margin && kl.abs() <= t_k + mk,
         Label::Minimal => hl.abs() <= t_h + margin && kl < -t_k + mk,

@@ -8,8 +8,8 @@
 use super::frame::Frame;
 use super::neighbourhood::Neighbourhoods;
 use super::normals::vertex_normals;
-use super::quadric_fit::{FitKind, fit_quadric};
-use crate::mesh::{Mesh, Topology};
+use super::quadric_fit::{FitKind, fit_neighbours};
+use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -73,7 +73,9 @@ pub fn fit_pass(
             if !movable[v] || n == DVec3::ZERO {
                 return s;
             }
-            let fit = fit_quadric(&Frame::new(p, n), positions, hoods.get(v));
+            // A movable boundary vertex (rule `normal_only`) fits a plane.
+            let plane_only = topo.kind(v) == VertexKind::Boundary;
+            let fit = fit_neighbours(&Frame::new(p, n), positions, hoods.get(v), plane_only);
             match fit.kind {
                 FitKind::Quadric => s.quadric = 1,
                 FitKind::Plane => s.plane_fallback = 1,
@@ -87,4 +89,3 @@ pub fn fit_pass(
         })
         .reduce(FitStats::default, FitStats::merge)
 }
-

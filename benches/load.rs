@@ -1,0 +1,374 @@
+//! Load benchmark of `meshsmooth serve` (not a timed test).
+//!
+//! Starts the real binary, uploads generated voxel spheres of about 10k,
+//! 100k and 228k vertices to `POST /v1/smooth` from 1, 4 and 16 concurrent
+//! clients, and reports throughput and latency percentiles; then times
+//! `meshsmooth smooth` (the CLI) on the same meshes and reports the
+//! server's overhead per request (end-to-end time minus the CLI's time).
+//!
+//! Run: `cargo bench --bench load`. Settings (environment):
+//! - `MESHSMOOTH_BENCH_SIZES`: vertex targets, comma separated
+//!   (default `10000,100000,228000`);
+//! - `MESHSMOOTH_BENCH_CLIENTS`: concurrency levels (default `1,4,16`);
+//! - `MESHSMOOTH_BENCH_REQUESTS`: requests per level (default: the larger
+//!   of 4 and the concurrency);
+//! - `MESHSMOOTH_BENCH_QUERY`: query string of parameters (default: none,
+//!   the default Wang-Yu parameters);
+//! - `MESHSMOOTH_BENCH_MESH`: an extra OBJ file to include.
+
+use http_body_util::{BodyExt, Full};
+use hyper::Request;
+use hyper::body::Bytes;
+use hyper_util::rt::TokioIo;
+use std::collections::HashMap;
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
+use std::process::{Command, Stdio};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::net::TcpStream;
+
+fn env_list(name: &str, default: &str) -> Vec<usize> {
+    std::env::var(name)
+        .unwrap_or_else(|_| default.to_owned())
+        .split(',')
+        .filter_map(|s| s.trim().parse().ok())
+        .collect()
+}
+
+/// Voxel-sphere boundary quads as OBJ text, and its vertex count.
+fn voxel_sphere(radius: f64) -> (String, usize) {
+    let n = radius.ceil() as i64 + 1;
+    let inside = |i: i64, j: i64, k: i64| {
+        let c = [i as f64 + 0.5, j as f64 + 0.5, k as f64 + 0.5];
+        c[0] * c[0] + c[1] * c[1] + c[2] * c[2] <= radius * radius
+    };
+    let mut ids: HashMap<[i64; 3], usize> = HashMap::new();
+    let mut vertices = Vec::new();
+    let mut faces = Vec::new();
+    for i in -n..n {
+        for j in -n..n {
+            for k in -n..n {
+                if !inside(i, j, k) {
+                    continue;
+                }
+                for axis in 0..3 {
+                    for sign in [1i64, -1] {
+                        let mut q = [i, j, k];
+                        q[axis] += sign;
+                        if inside(q[0], q[1], q[2]) {
+                            continue;
+                        }
+                        let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
+                        let mut base = [i, j, k];
+                        if sign > 0 {
+                            base[axis] += 1;
+                        }
+                        let mut p1 = base;
+                        p1[b] += 1;
+                        let mut p2 = p1;
+                        p2[c] += 1;
+                        let mut p3 = base;
+                        p3[c] += 1;
+                        let mut quad = [base, p1, p2, p3].map(|p| {
+                            *ids.entry(p).or_insert_with(|| {
+                                vertices.push(p);
+                                vertices.len()
+                            })
+                        });
+                        if sign < 0 {
+                            quad.reverse();
+                        }
+                        faces.push(quad);
+                    }
+                }
+            }
+        }
+    }
+    let mut text = String::with_capacity(vertices.len() * 40 + faces.len() * 40);
+    for v in &vertices {
+        text.push_str(&format!("v {} {} {}\n", v[0], v[1], v[2]));
+    }
+    for f in &faces {
+        text.push_str(&format!("f {} {} {} {}\n", f[0], f[1], f[2], f[3]));
+    }
+    (text, vertices.len())
+}
+
+/// The voxel sphere whose vertex count is closest to `target` (the count
+/// grows like the radius squared: about 19 r^2).
+fn sphere_near(target: usize) -> (String, usize) {
+    let guess = (target as f64 / 19.0).sqrt();
+    let mut best = voxel_sphere(guess);
+    for step in [0.5, 0.25, 0.1] {
+        for radius in [guess - step, guess + step] {
+            let candidate = voxel_sphere(radius);
+            if candidate.1.abs_diff(target) < best.1.abs_diff(target) {
+                best = candidate;
+            }
+        }
+    }
+    best
+}
+
+struct Outcome {
+    latency: Duration,
+    run_seconds: f64,
+}
+
+async fn smooth_once(addr: SocketAddr, path: &str, body: Bytes) -> Outcome {
+    let start = Instant::now();
+    loop {
+        let (status, headers, _) = send(addr, "POST", path, Some(body.clone())).await;
+        if status == 503 {
+            let wait = headers
+                .get("retry-after")
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(1);
+            tokio::time::sleep(Duration::from_secs(wait)).await;
+            continue;
+        }
+        assert_eq!(status, 200, "smoothing failed");
+        let latency = start.elapsed();
+        let id = headers.get("x-job-id").cloned().unwrap_or_default();
+        let (_, _, job) = send(addr, "GET", &format!("/v1/jobs/{id}"), None).await;
+        let job: serde_json::Value = serde_json::from_slice(&job).unwrap_or_default();
+        let run_seconds = job["run_seconds"].as_f64().unwrap_or(f64::NAN);
+        return Outcome {
+            latency,
+            run_seconds,
+        };
+    }
+}
+
+async fn send(
+    addr: SocketAddr,
+    method: &str,
+    path: &str,
+    body: Option<Bytes>,
+) -> (u16, HashMap<String, String>, Bytes) {
+    let stream = TcpStream::connect(addr).await.expect("connect");
+    let _ = stream.set_nodelay(true);
+    let (mut sender, conn) = hyper::client::conn::http1::handshake(TokioIo::new(stream))
+        .await
+        .expect("handshake");
+    tokio::spawn(conn);
+    let req = Request::builder()
+        .method(method)
+        .uri(path)
+        .header("host", addr.to_string())
+        .header("content-type", "model/obj")
+        .body(Full::new(body.unwrap_or_default()))
+        .expect("request");
+    let response = sender.send_request(req).await.expect("send");
+    let status = response.status().as_u16();
+    let headers = response
+        .headers()
+        .iter()
+        .map(|(k, v)| {
+            (
+                k.as_str().to_owned(),
+                v.to_str().unwrap_or_default().to_owned(),
+            )
+        })
+        .collect();
+    let body = response
+        .into_body()
+        .collect()
+        .await
+        .expect("body")
+        .to_bytes();
+    (status, headers, body)
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let rank = (p / 100.0 * (sorted.len() - 1) as f64).round() as usize;
+    sorted[rank.min(sorted.len() - 1)]
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    percentile(&v, 50.0)
+}
+
+/// Times `meshsmooth smooth` on `input`, median of `runs`.
+fn cli_seconds(bin: &str, input: &std::path::Path, query: &str, runs: usize) -> f64 {
+    let output = input.with_extension("out.obj");
+    let mut args: Vec<String> = vec![
+        "smooth".into(),
+        input.display().to_string(),
+        "-o".into(),
+        output.display().to_string(),
+        "-q".into(),
+    ];
+    if !query.is_empty() {
+        let params: serde_json::Map<String, serde_json::Value> = query
+            .split('&')
+            .filter_map(|kv| kv.split_once('='))
+            .map(|(k, v)| {
+                let value = serde_json::from_str(v).unwrap_or_else(|_| v.into());
+                (k.to_owned(), value)
+            })
+            .collect();
+        let file = input.with_extension("params.json");
+        std::fs::write(&file, serde_json::Value::Object(params).to_string()).expect("params");
+        args.push("--params".into());
+        args.push(file.display().to_string());
+    }
+    let times = (0..runs)
+        .map(|_| {
+            let start = Instant::now();
+            let status = Command::new(bin)
+                .args(&args)
+                .stdout(Stdio::null())
+                .status()
+                .expect("run the CLI");
+            assert!(status.success(), "meshsmooth smooth failed");
+            start.elapsed().as_secs_f64()
+        })
+        .collect();
+    median(times)
+}
+
+fn main() {
+    let bin = env!("CARGO_BIN_EXE_meshsmooth");
+    let sizes = env_list("MESHSMOOTH_BENCH_SIZES", "10000,100000,228000");
+    let clients = env_list("MESHSMOOTH_BENCH_CLIENTS", "1,4,16");
+    let fixed_requests = env_list("MESHSMOOTH_BENCH_REQUESTS", "").first().copied();
+    let query = std::env::var("MESHSMOOTH_BENCH_QUERY").unwrap_or_default();
+    let path = if query.is_empty() {
+        "/v1/smooth".to_owned()
+    } else {
+        format!("/v1/smooth?{query}")
+    };
+    let dir = std::env::temp_dir().join(format!("meshsmooth-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+
+    let mut meshes: Vec<(String, usize, Bytes)> = sizes
+        .iter()
+        .map(|&target| {
+            let (text, vertices) = sphere_near(target);
+            (
+                format!("voxel sphere {vertices}"),
+                vertices,
+                Bytes::from(text),
+            )
+        })
+        .collect();
+    if let Ok(extra) = std::env::var("MESHSMOOTH_BENCH_MESH") {
+        let text = std::fs::read(&extra).expect("read MESHSMOOTH_BENCH_MESH");
+        let vertices = text
+            .split(|&b| b == b'\n')
+            .filter(|l| l.starts_with(b"v "))
+            .count();
+        meshes.push((extra, vertices, Bytes::from(text)));
+    }
+
+    let mut server = Command::new(bin)
+        .args(["serve", "--listen", "127.0.0.1:0", "--queue-capacity", "64"])
+        .args(["--log", "warn"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start the server");
+    let mut line = String::new();
+    BufReader::new(server.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("listening line");
+    let addr: SocketAddr = line
+        .trim()
+        .strip_prefix("meshsmooth listening on http://")
+        .and_then(|a| a.parse().ok())
+        .expect("bound address");
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .expect("runtime");
+
+    println!("# meshsmooth load benchmark");
+    println!(
+        "server: {addr}, workers = {cores} (cores), parameters: {}",
+        if query.is_empty() { "defaults" } else { &query }
+    );
+    println!();
+    println!(
+        "| mesh | vertices | MB | clients | requests | req/s | Mvertices/s | p50 s | p90 s | p99 s | max s | mean run s |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let mut single_client: Vec<(String, usize, f64, f64, std::path::PathBuf)> = Vec::new();
+    for (name, vertices, body) in &meshes {
+        let file = dir.join(format!("{vertices}.obj"));
+        std::fs::write(&file, body).expect("write mesh");
+        for &c in &clients {
+            let requests = fixed_requests.unwrap_or(c.max(4));
+            let next = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+            let start = Instant::now();
+            let outcomes: Vec<Outcome> = runtime.block_on(async {
+                let tasks: Vec<_> = (0..c)
+                    .map(|_| {
+                        let next = next.clone();
+                        let body = body.clone();
+                        let path = path.clone();
+                        tokio::spawn(async move {
+                            let mut mine = Vec::new();
+                            while next.fetch_add(1, std::sync::atomic::Ordering::Relaxed) < requests
+                            {
+                                mine.push(smooth_once(addr, &path, body.clone()).await);
+                            }
+                            mine
+                        })
+                    })
+                    .collect();
+                let mut all = Vec::new();
+                for t in tasks {
+                    all.extend(t.await.expect("client task"));
+                }
+                all
+            });
+            let wall = start.elapsed().as_secs_f64();
+            let mut lat: Vec<f64> = outcomes.iter().map(|o| o.latency.as_secs_f64()).collect();
+            lat.sort_by(f64::total_cmp);
+            let run_mean =
+                outcomes.iter().map(|o| o.run_seconds).sum::<f64>() / outcomes.len() as f64;
+            println!(
+                "| {name} | {vertices} | {:.1} | {c} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                body.len() as f64 / 1e6,
+                outcomes.len(),
+                outcomes.len() as f64 / wall,
+                (outcomes.len() * vertices) as f64 / wall / 1e6,
+                percentile(&lat, 50.0),
+                percentile(&lat, 90.0),
+                percentile(&lat, 99.0),
+                lat.last().copied().unwrap_or(f64::NAN),
+                run_mean,
+            );
+            if c == 1 {
+                single_client.push((name.clone(), *vertices, median(lat), run_mean, file.clone()));
+            }
+        }
+    }
+    let _ = server.kill();
+    let _ = server.wait();
+
+    println!();
+    println!("## Server overhead per request (1 client) vs `meshsmooth smooth`");
+    println!();
+    println!(
+        "| mesh | vertices | CLI s (median of 3) | server end-to-end s (median) | overhead s | overhead % | server run s (pipeline only) |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|---:|");
+    for (name, vertices, e2e, run, file) in single_client {
+        let cli = cli_seconds(bin, &file, &query, 3);
+        println!(
+            "| {name} | {vertices} | {cli:.3} | {e2e:.3} | {:.3} | {:.1} | {run:.3} |",
+            e2e - cli,
+            100.0 * (e2e - cli) / cli
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
