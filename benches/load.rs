@@ -11,7 +11,7 @@
 //!   (default `10000,100000,228000`);
 //! - `MESHSMOOTH_BENCH_CLIENTS`: concurrency levels (default `1,4,16`);
 //! - `MESHSMOOTH_BENCH_REQUESTS`: requests per level (default: the larger
-//!   of 4 and the concurrency);
+//!   of 8 and the concurrency);
 //! - `MESHSMOOTH_BENCH_QUERY`: query string of parameters (default: none,
 //!   the default Wang-Yu parameters);
 //! - `MESHSMOOTH_BENCH_MESH`: an extra OBJ file to include.
@@ -194,8 +194,8 @@ fn median(mut v: Vec<f64>) -> f64 {
     percentile(&v, 50.0)
 }
 
-/// Times `meshsmooth smooth` on `input`, median of `runs`.
-fn cli_seconds(bin: &str, input: &std::path::Path, query: &str, runs: usize) -> f64 {
+/// Times one run of `meshsmooth smooth` on `input`.
+fn cli_seconds(bin: &str, input: &std::path::Path, query: &str) -> f64 {
     let output = input.with_extension("out.obj");
     let mut args: Vec<String> = vec![
         "smooth".into(),
@@ -218,20 +218,18 @@ fn cli_seconds(bin: &str, input: &std::path::Path, query: &str, runs: usize) -> 
         args.push("--params".into());
         args.push(file.display().to_string());
     }
-    let times = (0..runs)
-        .map(|_| {
-            let start = Instant::now();
-            let status = Command::new(bin)
-                .args(&args)
-                .stdout(Stdio::null())
-                .status()
-                .expect("run the CLI");
-            assert!(status.success(), "meshsmooth smooth failed");
-            start.elapsed().as_secs_f64()
-        })
-        .collect();
-    median(times)
+    let start = Instant::now();
+    let status = Command::new(bin)
+        .args(&args)
+        .stdout(Stdio::null())
+        .status()
+        .expect("run the CLI");
+    assert!(status.success(), "meshsmooth smooth failed");
+    start.elapsed().as_secs_f64()
 }
+
+/// Alternating CLI/server rounds in the overhead table.
+const OVERHEAD_ROUNDS: usize = 3;
 
 fn main() {
     let bin = env!("CARGO_BIN_EXE_meshsmooth");
@@ -297,15 +295,15 @@ fn main() {
     );
     println!();
     println!(
-        "| mesh | vertices | MB | clients | requests | req/s | Mvertices/s | p50 s | p90 s | p99 s | max s | mean run s |"
+        "| mesh | vertices | MB | clients | requests | req/s | Mvertices/s | min s | p50 s | p90 s | p99 s | max s | mean run s |"
     );
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
-    let mut single_client: Vec<(String, usize, f64, f64, std::path::PathBuf)> = Vec::new();
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let mut single_client = Vec::new();
     for (name, vertices, body) in &meshes {
         let file = dir.join(format!("{vertices}.obj"));
         std::fs::write(&file, body).expect("write mesh");
         for &c in &clients {
-            let requests = fixed_requests.unwrap_or(c.max(4));
+            let requests = fixed_requests.unwrap_or(c.max(8));
             let next = Arc::new(std::sync::atomic::AtomicUsize::new(0));
             let start = Instant::now();
             let outcomes: Vec<Outcome> = runtime.block_on(async {
@@ -336,39 +334,51 @@ fn main() {
             let run_mean =
                 outcomes.iter().map(|o| o.run_seconds).sum::<f64>() / outcomes.len() as f64;
             println!(
-                "| {name} | {vertices} | {:.1} | {c} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                "| {name} | {vertices} | {:.1} | {c} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
                 body.len() as f64 / 1e6,
                 outcomes.len(),
                 outcomes.len() as f64 / wall,
                 (outcomes.len() * vertices) as f64 / wall / 1e6,
+                lat.first().copied().unwrap_or(f64::NAN),
                 percentile(&lat, 50.0),
                 percentile(&lat, 90.0),
                 percentile(&lat, 99.0),
                 lat.last().copied().unwrap_or(f64::NAN),
                 run_mean,
             );
-            if c == 1 {
-                single_client.push((name.clone(), *vertices, median(lat), run_mean, file.clone()));
-            }
         }
+        single_client.push((name.clone(), *vertices, body.clone(), file));
     }
-    let _ = server.kill();
-    let _ = server.wait();
-
     println!();
-    println!("## Server overhead per request (1 client) vs `meshsmooth smooth`");
+    println!("## Server overhead per request vs `meshsmooth smooth` (1 client)");
     println!();
     println!(
-        "| mesh | vertices | CLI s (median of 3) | server end-to-end s (median) | overhead s | overhead % | server run s (pipeline only) |"
+        "CLI and server runs alternate ({OVERHEAD_ROUNDS} rounds each) so that load from \
+         elsewhere on the machine hits both alike; medians."
+    );
+    println!();
+    println!(
+        "| mesh | vertices | CLI s | server end-to-end s | overhead s | overhead % | server pipeline s |"
     );
     println!("|---|---:|---:|---:|---:|---:|---:|");
-    for (name, vertices, e2e, run, file) in single_client {
-        let cli = cli_seconds(bin, &file, &query, 3);
+    for (name, vertices, body, file) in single_client {
+        let mut cli = Vec::new();
+        let mut e2e = Vec::new();
+        let mut run = Vec::new();
+        for _ in 0..OVERHEAD_ROUNDS {
+            cli.push(cli_seconds(bin, &file, &query));
+            let o = runtime.block_on(smooth_once(addr, &path, body.clone()));
+            e2e.push(o.latency.as_secs_f64());
+            run.push(o.run_seconds);
+        }
+        let (cli, e2e, run) = (median(cli), median(e2e), median(run));
         println!(
             "| {name} | {vertices} | {cli:.3} | {e2e:.3} | {:.3} | {:.1} | {run:.3} |",
             e2e - cli,
             100.0 * (e2e - cli) / cli
         );
     }
+    let _ = server.kill();
+    let _ = server.wait();
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -137,7 +137,7 @@ pub struct QualityParams {
     /// Default 0.2; range 0..=1.
     pub short_edge_fraction: f64,
     /// A triangle-split angle below this (degrees) is sharp and triggers
-    /// angle-based smoothing. Default 20; range 0..=60.
+    /// angle-based smoothing. Default 25 (a margin above the 15° floor the fixes must guarantee); range 0..=60.
     pub sharp_angle_deg: f64,
     /// Most sweeps of the sharp-angle fix. Default 10; range 0..=100.
     pub max_sweeps: u32,
@@ -148,7 +148,7 @@ impl Default for QualityParams {
         QualityParams {
             enabled: true,
             short_edge_fraction: 0.2,
-            sharp_angle_deg: 20.0,
+            sharp_angle_deg: 25.0,
             max_sweeps: 10,
         }
     }
@@ -311,7 +311,7 @@ mod tests {
             QualityParams {
                 enabled: true,
                 short_edge_fraction: 0.2,
-                sharp_angle_deg: 20.0,
+                sharp_angle_deg: 25.0,
                 max_sweeps: 10
             }
         );
@@ -348,6 +348,6 @@ mod tests {
             serde_json::from_str(r#"{"method": "taubin", "quality": {"enabled": false}}"#).unwrap();
         assert_eq!(p.method, Method::Taubin);
         assert!(!p.quality.enabled);
-        assert_eq!(p.k_max, 9);
+        assert_eq!(p.k_max, Params::default().k_max);
     }
 }

@@ -170,9 +170,12 @@ pub struct WangYuRun {
 
 /// Initial smoothing, labelling and adaptive smoothing with volume
 /// restoration (paper sections 2.2-2.3), without the quality fixes.
+/// `two_ring` is [`Neighbourhoods::two_ring`] of `topo` with
+/// `params.max_fit_points`.
 pub fn wang_yu(
     mesh: &Mesh,
     topo: &Topology,
+    two_ring: &Neighbourhoods,
     movable: &[bool],
     params: &Params,
     progress: &dyn Progress,
@@ -181,14 +184,13 @@ pub fn wang_yu(
     let mut timings_ms = Vec::new();
     let max_points = params.max_fit_points as usize;
     let t = Instant::now();
-    let two_ring = Neighbourhoods::two_ring(topo, max_points);
     let mut positions = mesh.positions().to_vec();
     let passes = params.initial_passes;
     let (initial_fits, hk) = smooth_passes(
         mesh,
         topo,
         &mut positions,
-        &two_ring,
+        two_ring,
         movable,
         passes,
         cancel,
@@ -213,7 +215,6 @@ pub fn wang_yu(
     });
     let hk = vertex_curvatures(mesh, topo, &positions, &curvature_hoods).0;
     drop(curvature_hoods);
-    drop(two_ring);
     let l = mean_edge_length(mesh, &positions);
     let labels: Vec<Label> = hk
         .iter()
@@ -254,7 +255,9 @@ pub fn wang_yu(
     let mut volume_offset = 0.0;
     if params.preserve_volume && topo.num_boundary_edges() == 0 {
         let target = mesh.signed_volume();
-        volume_offset = restore_volume(mesh, topo, &mut positions, movable, target);
+        // More than half an edge length is no smoothing bias to undo.
+        let max_offset = 0.5 * mean_edge_length(mesh, &positions);
+        volume_offset = restore_volume(mesh, topo, &mut positions, movable, target, max_offset);
     }
     timings_ms.push((Stage::Adaptive, ms(t)));
     Ok(WangYuRun {
@@ -301,7 +304,6 @@ pub fn run(
     let movable = movable_mask(&topo, params.boundary);
     let two_ring = Neighbourhoods::two_ring(&topo, params.max_fit_points as usize);
     let (input_curvature, _) = vertex_curvatures(mesh, &topo, input, &two_ring);
-    drop(two_ring);
     let mut report = QualityReport::new(mesh_statistics(mesh, &topo), Reproducibility::new(params));
     report.stages.input = Some(measure_stage(
         mesh,
@@ -319,7 +321,7 @@ pub fn run(
         Method::WangYu => {
             let r = {
                 let _s = tracing::info_span!("wang_yu").entered();
-                wang_yu(mesh, &topo, &movable, params, progress, cancel)?
+                wang_yu(mesh, &topo, &two_ring, &movable, params, progress, cancel)?
             };
             let t = Instant::now();
             report.stages.initial = Some(measure_stage(

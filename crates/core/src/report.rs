@@ -280,6 +280,9 @@ pub struct FitCounts {
     pub fixed: u64,
     /// Largest single move of a vertex in one pass, in mesh units.
     pub max_step: f64,
+    /// Moves cut to the vertex's mean edge length (a fit that would
+    /// have jumped).
+    pub clamped: u64,
 }
 
 impl From<FitStats> for FitCounts {
@@ -289,6 +292,7 @@ impl From<FitStats> for FitCounts {
             plane: s.plane_fallback,
             fixed: s.fixed_fallback,
             max_step: s.max_displacement,
+            clamped: s.clamped,
         }
     }
 }

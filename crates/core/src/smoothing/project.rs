@@ -14,6 +14,9 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
 
+/// Largest move of one pass, in units of the vertex's mean edge length.
+pub const MAX_STEP: f64 = 1.0;
+
 /// What one pass (or a sum of passes) did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct FitStats {
@@ -25,6 +28,8 @@ pub struct FitStats {
     pub fixed_fallback: u64,
     /// Largest distance a vertex moved.
     pub max_displacement: f64,
+    /// Moves cut to [`MAX_STEP`] mean edge lengths.
+    pub clamped: u64,
 }
 
 impl FitStats {
@@ -34,6 +39,7 @@ impl FitStats {
             plane_fallback: self.plane_fallback + o.plane_fallback,
             fixed_fallback: self.fixed_fallback + o.fixed_fallback,
             max_displacement: self.max_displacement.max(o.max_displacement),
+            clamped: self.clamped + o.clamped,
         }
     }
 
@@ -82,7 +88,19 @@ pub fn fit_pass(
                 FitKind::Fixed => s.fixed_fallback = 1,
             }
             *hk = fit.curvature();
-            let g = fit.height();
+            // No jumps: one pass moves a vertex by at most its mean
+            // edge length (staircase noise needs at most half of that;
+            // a larger step means a fit that does not describe the surface).
+            let nb = topo.neighbors(v);
+            let local = nb
+                .iter()
+                .map(|&j| positions[j as usize].distance(p))
+                .sum::<f64>()
+                / nb.len().max(1) as f64;
+            let g = fit.height().clamp(-MAX_STEP * local, MAX_STEP * local);
+            if g != fit.height() {
+                s.clamped = 1;
+            }
             *o = p + g * n;
             s.max_displacement = g.abs();
             s

@@ -13,13 +13,17 @@ use glam::DVec3;
 
 /// Moves every movable vertex by `delta * n_i`, solving for `delta` with a
 /// few secant steps so the signed volume equals `target`. Returns the offset
-/// applied (0 when the mesh has no area or the volumes do not share a sign).
+/// applied. Nothing moves (and 0 is returned) when the mesh has no area, the
+/// volumes do not share a sign, or the offset needed exceeds `max_offset`:
+/// the restoration corrects a small smoothing bias, it never inflates a
+/// surface that is not a consistently oriented closed one.
 pub fn restore_volume(
     mesh: &Mesh,
     topo: &Topology,
     positions: &mut [DVec3],
     movable: &[bool],
     target: f64,
+    max_offset: f64,
 ) -> f64 {
     let normals = vertex_normals(mesh, topo, positions);
     let base: Vec<DVec3> = positions.to_vec();
@@ -53,6 +57,11 @@ pub fn restore_volume(
         d1 = d2;
         apply(d1, positions);
         v1 = signed_volume(mesh, positions);
+    }
+    let converged = (v1 - target).abs() <= 1e-6 * target.abs();
+    if !d1.is_finite() || d1.abs() > max_offset || !converged {
+        positions.copy_from_slice(&base);
+        return 0.0;
     }
     d1
 }
