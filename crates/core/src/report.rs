@@ -406,6 +406,66 @@ mod tests {
         assert!(ring_size_histogram(&[]).is_empty());
     }
 
+    /// Numbers equal within a relative 1e-15 (JSON float parsing may be one
+    /// unit in the last place off), everything else exactly.
+    fn same(a: &serde_json::Value, b: &serde_json::Value) -> bool {
+        use serde_json::Value;
+        match (a, b) {
+            (Value::Number(x), Value::Number(y)) => {
+                let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+                (x - y).abs() <= 1e-15 * x.abs().max(y.abs())
+            }
+            (Value::Array(x), Value::Array(y)) => {
+                x.len() == y.len() && x.iter().zip(y).all(|(x, y)| same(x, y))
+            }
+            (Value::Object(x), Value::Object(y)) => {
+                x.len() == y.len() && x.iter().all(|(k, v)| y.get(k).is_some_and(|w| same(v, w)))
+            }
+            _ => a == b,
+        }
+    }
+
+    #[test]
+    fn a_measured_report_round_trips_through_json() {
+        use crate::mesh::Topology;
+        use crate::quality::{improve, measure_stage, mesh_statistics};
+        use crate::shapes::voxel_sphere;
+        let (_, mesh) = voxel_sphere(4.0);
+        let topo = Topology::build(&mesh);
+        let params = Params::default();
+        let input = mesh.positions();
+        let mut report =
+            QualityReport::new(mesh_statistics(&mesh, &topo), Reproducibility::new(&params));
+        report.stages.input = Some(measure_stage(&mesh, &topo, input, input, None, 0.2));
+        let mut p: Vec<_> = input.iter().map(|&q| q * 1.01).collect();
+        report.quality_fixes = Some(improve(&mesh, &topo, &mut p, input, &params.quality));
+        report.stages.final_stage = Some(measure_stage(&mesh, &topo, &p, input, None, 0.2));
+        report.timings.push(StageTiming {
+            stage: "quality".into(),
+            ms: 1.5,
+        });
+        report.reproducibility.input_sha256 = Some(sha256_hex(b"mesh"));
+        let json = serde_json::to_string_pretty(&report).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(v["schema_version"], SCHEMA_VERSION);
+        assert!(v["stages"]["final"].is_object() && v["stages"]["initial"].is_null());
+        assert_eq!(
+            v["stages"]["input"]["triangle_angles"]["histogram"]
+                .as_array()
+                .unwrap()
+                .len(),
+            ANGLE_BINS
+        );
+        assert_eq!(v["reproducibility"]["params"]["method"], "wang-yu");
+        assert!(v["mesh"]["closed"].as_bool().unwrap());
+        let back: QualityReport = serde_json::from_str(&json).unwrap();
+        assert!(same(&serde_json::to_value(&back).unwrap(), &v));
+        assert_eq!(back.mesh, report.mesh);
+        let (fixes, fixes_back) = (report.quality_fixes.unwrap(), back.quality_fixes.unwrap());
+        assert_eq!(fixes_back.twisted, fixes.twisted);
+        assert_eq!(fixes_back.sharp_angles, fixes.sharp_angles);
+    }
+
     #[test]
     fn labels_are_counted() {
         let c = LabelCounts::from_labels(&[Label::Flat, Label::Convex, Label::Convex]);

@@ -149,7 +149,19 @@ pub(crate) struct FaceState {
     pub twisted: bool,
     /// Cosine of the face's smallest split-triangle angle.
     pub max_cos: f64,
+    /// Cosine of the wider of a quad's two corners that its split divides
+    /// (corners 1 and 3 of `(v1 v2 v3 v4)`); 1 for other faces. The
+    /// split-triangle angles do not bound these corners.
+    pub wide_cos: f64,
+    /// Sum over the split triangles of `(c - c_goal)^2` where the cosine
+    /// `c` of a triangle's smallest angle exceeds the goal's `c_goal`: how
+    /// far the face falls short of the angle goal.
+    pub deficit: f64,
 }
+
+/// A move may not open a quad's split corner beyond this angle (cosine of
+/// 160°), unless the corner was already wider.
+pub(crate) const WIDEST_CORNER_COS: f64 = -0.939_692_620_785_908_4;
 
 /// Twice the area-weighted normals of the split triangles of `face` (fan
 /// from corner 0), appended to `out`, followed by their sum (twice the
@@ -169,17 +181,34 @@ fn push_split_normals(face: &[u32], positions: &[DVec3], out: &mut Vec<DVec3>) {
 /// State of `face` given the split normals of the input (as written by
 /// `push_split_normals`).
 #[inline]
-fn face_state_with(face: &[u32], positions: &[DVec3], input_normals: &[DVec3]) -> FaceState {
-    let o = positions[face[0] as usize];
+fn face_state_with(
+    face: &[u32],
+    positions: &[DVec3],
+    input_normals: &[DVec3],
+    cos_goal: f64,
+) -> FaceState {
+    face_state_at(face, |w| positions[w as usize], input_normals, cos_goal)
+}
+
+/// [`face_state_with`] reading corner positions through `pos`.
+#[inline]
+fn face_state_at(
+    face: &[u32],
+    pos: impl Fn(u32) -> DVec3,
+    input_normals: &[DVec3],
+    cos_goal: f64,
+) -> FaceState {
+    let o = pos(face[0]);
     let k = face.len();
     let mut sum = DVec3::ZERO;
     let mut first = DVec3::ZERO;
     let mut inverted = false;
     let mut twisted = false;
     let mut max_cos = -1.0f64;
+    let mut deficit = 0.0;
     for j in 1..k - 1 {
-        let a = positions[face[j] as usize];
-        let b = positions[face[j + 1] as usize];
+        let a = pos(face[j]);
+        let b = pos(face[j + 1]);
         let n = (a - o).cross(b - o);
         if k > 3 {
             inverted |= n.dot(input_normals[j - 1]) < 0.0;
@@ -190,13 +219,24 @@ fn face_state_with(face: &[u32], positions: &[DVec3], input_normals: &[DVec3]) -
             twisted = first.dot(n) < 0.0;
         }
         sum += n;
-        max_cos = max_cos.max(min_angle_cos(o, a, b));
+        let c = min_angle_cos(o, a, b);
+        max_cos = max_cos.max(c);
+        let short = (c - cos_goal).max(0.0);
+        deficit += short * short;
     }
     inverted |= sum.dot(input_normals[k - 2]) < 0.0;
+    let wide_cos = if k == 4 {
+        let (p1, p2, p3) = (pos(face[1]), pos(face[2]), pos(face[3]));
+        cos_between(p1 - o, p3 - o).min(cos_between(p1 - p2, p3 - p2))
+    } else {
+        1.0
+    };
     FaceState {
         inverted,
         twisted,
         max_cos,
+        wide_cos,
+        deficit,
     }
 }
 
@@ -213,19 +253,20 @@ pub(crate) fn face_state(face: &[u32], positions: &[DVec3], input: &[DVec3]) -> 
             sum += n;
         }
         buf[face.len() - 2] = sum;
-        face_state_with(face, positions, &buf)
+        face_state_with(face, positions, &buf, 1.0)
     } else {
         let mut v = Vec::with_capacity(face.len());
         push_split_normals(face, input, &mut v);
-        face_state_with(face, positions, &v)
+        face_state_with(face, positions, &v, 1.0)
     }
 }
 
 /// What a tried move would do to the faces around it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Verdict {
-    /// A face that was not inverted becomes inverted, or a quad that was not
-    /// twisted becomes twisted: the move is never allowed.
+    /// A face that was not inverted becomes inverted, a quad that was not
+    /// twisted becomes twisted, or a quad's split corner opens beyond 160°
+    /// (or beyond its angle before, if wider): the move is never allowed.
     pub new_defect: bool,
     /// Inverted faces before and after, among the affected faces.
     pub inverted: (u32, u32),
@@ -234,6 +275,11 @@ pub(crate) struct Verdict {
     /// Cosine of the smallest split-triangle angle over the affected faces,
     /// before and after.
     pub max_cos: (f64, f64),
+    /// Summed angle deficit of the affected faces (see `FaceState`), before
+    /// and after.
+    pub deficit: (f64, f64),
+    /// A face whose angles all met the goal no longer does.
+    pub newly_sharp: bool,
 }
 
 impl Verdict {
@@ -245,20 +291,31 @@ impl Verdict {
             && self.max_cos.1 <= self.max_cos.0
     }
 
-    /// No new defect and either fewer defects or a strictly larger smallest
-    /// angle, with no more defects than before.
-    pub fn improves(&self) -> bool {
+    /// No new defect, no more defects, and one of: fewer defects; a
+    /// strictly larger smallest angle; or a smaller angle deficit with no
+    /// face newly short of the goal and no angle below `cos_floor`'s (the
+    /// mesh's smallest angle when the fix began). The last lets a straight
+    /// row of slivers shift as a whole, which no single move can do while
+    /// every move must grow the local smallest angle.
+    pub fn improves(&self, cos_floor: f64) -> bool {
         if self.new_defect || self.inverted.1 > self.inverted.0 || self.twisted.1 > self.twisted.0 {
             return false;
         }
-        self.inverted.1 < self.inverted.0
+        if self.inverted.1 < self.inverted.0
             || self.twisted.1 < self.twisted.0
             || self.max_cos.1 < self.max_cos.0
+        {
+            return true;
+        }
+        !self.newly_sharp
+            && self.deficit.1 < self.deficit.0 * (1.0 - 1e-9)
+            && self.max_cos.1 <= cos_floor.max(self.max_cos.0)
     }
 }
 
-/// Tries moves of a few vertices and undoes them unless they pass a test.
-/// Holds scratch buffers so that a try allocates nothing once warmed up.
+/// Judges tried moves of a few vertices against the faces around them,
+/// without changing the positions. Holds scratch buffers so that a try
+/// allocates nothing once warmed up.
 #[derive(Debug, Default)]
 pub(crate) struct MoveTester {
     faces: Vec<u32>,
@@ -266,12 +323,13 @@ pub(crate) struct MoveTester {
     starts: Vec<u32>,
     input_normals: Vec<DVec3>,
     before: Vec<FaceState>,
-    saved: Vec<(usize, DVec3)>,
+    cos_goal: f64,
 }
 
 impl MoveTester {
     /// Collects the faces around `vertices` (each once, skipping faces with
-    /// a repeated corner) and records their state.
+    /// a repeated corner) and records their state; `cos_goal` is the cosine
+    /// of the angle goal the deficits are measured against (1 for none).
     pub fn begin(
         &mut self,
         mesh: &Mesh,
@@ -279,7 +337,9 @@ impl MoveTester {
         vertices: &[usize],
         positions: &[DVec3],
         input: &[DVec3],
+        cos_goal: f64,
     ) {
+        self.cos_goal = cos_goal;
         self.faces.clear();
         for &v in vertices {
             for &f in topo.vertex_faces(v) {
@@ -300,52 +360,58 @@ impl MoveTester {
                 face,
                 positions,
                 &self.input_normals[start..],
+                cos_goal,
             ));
         }
     }
 
-    /// Applies `moves` (vertex, new position), judges the affected faces
-    /// recorded by [`MoveTester::begin`], and leaves the moves applied.
-    /// Call [`MoveTester::undo`] to revert them.
-    pub fn apply(
-        &mut self,
-        mesh: &Mesh,
-        moves: &[(usize, DVec3)],
-        positions: &mut [DVec3],
-    ) -> Verdict {
-        self.saved.clear();
-        for &(v, _) in moves {
-            self.saved.push((v, positions[v]));
-        }
-        for &(v, p) in moves {
-            positions[v] = p;
-        }
+    /// The goal given to [`MoveTester::begin`].
+    pub fn cos_goal(&self) -> f64 {
+        self.cos_goal
+    }
+
+    /// True when a recorded face is inverted, twisted, or has a smallest
+    /// split-triangle angle below the goal.
+    pub fn needs_work(&self) -> bool {
+        self.before
+            .iter()
+            .any(|s| s.inverted || s.twisted || s.max_cos > self.cos_goal)
+    }
+
+    /// Judges the faces recorded by [`MoveTester::begin`] as they would be
+    /// with `moves` (vertex, new position) applied to `positions`.
+    pub fn judge(&self, mesh: &Mesh, moves: &[(usize, DVec3)], positions: &[DVec3]) -> Verdict {
+        let pos = |w: u32| {
+            moves
+                .iter()
+                .find(|m| m.0 == w as usize)
+                .map_or(positions[w as usize], |m| m.1)
+        };
         let mut verdict = Verdict {
             new_defect: false,
             inverted: (0, 0),
             twisted: (0, 0),
             max_cos: (-1.0, -1.0),
+            deficit: (0.0, 0.0),
+            newly_sharp: false,
         };
         for ((&f, b), &start) in self.faces.iter().zip(&self.before).zip(&self.starts) {
             let normals = &self.input_normals[start as usize..];
-            let a = face_state_with(mesh.face(f as usize), positions, normals);
-            verdict.new_defect |= (a.inverted && !b.inverted) || (a.twisted && !b.twisted);
+            let a = face_state_at(mesh.face(f as usize), pos, normals, self.cos_goal);
+            verdict.new_defect |= (a.inverted && !b.inverted)
+                || (a.twisted && !b.twisted)
+                || a.wide_cos < b.wide_cos.min(WIDEST_CORNER_COS);
             verdict.inverted.0 += b.inverted as u32;
             verdict.inverted.1 += a.inverted as u32;
             verdict.twisted.0 += b.twisted as u32;
             verdict.twisted.1 += a.twisted as u32;
             verdict.max_cos.0 = verdict.max_cos.0.max(b.max_cos);
             verdict.max_cos.1 = verdict.max_cos.1.max(a.max_cos);
+            verdict.deficit.0 += b.deficit;
+            verdict.deficit.1 += a.deficit;
+            verdict.newly_sharp |= b.max_cos <= self.cos_goal && a.max_cos > self.cos_goal;
         }
         verdict
-    }
-
-    /// Reverts the moves of the last [`MoveTester::apply`].
-    pub fn undo(&mut self, positions: &mut [DVec3]) {
-        for &(v, p) in self.saved.iter().rev() {
-            positions[v] = p;
-        }
-        self.saved.clear();
     }
 }
 
@@ -554,13 +620,18 @@ pub(crate) fn link_centroid(
     Some((sx / k, sy / k))
 }
 
-/// Tangent-plane steps (local coordinates of `surface`) that turn each
-/// split triangle at `v` that is inverted relative to `input` the right
-/// way round: a triangle `(v, a, b)`'s normal dotted with its input normal
-/// `m` is affine in `v`, `(a x b).m + v.((a - b) x m)`, so the step along
-/// the tangent part of `(a - b) x m` that makes it positive is exact up to
-/// the lift onto the surface. Two steps per triangle (1.5 and 3 times the
-/// step that reaches zero), at most four triangles.
+/// Steps that turn each split triangle at `v` that is inverted relative to
+/// `input` the right way round: a triangle `(v, a, b)`'s normal dotted with
+/// its input normal `m` is affine in `v`, `(a x b).m + v.((a - b) x m)`, so
+/// a step along `g = (a - b) x m` that makes it positive is exact. Written
+/// to `tangent` as tangent-plane steps (local coordinates of `surface`,
+/// along the tangent part of `g`, to be lifted onto the surface) and to
+/// `direct` as positions moved along `g` itself, off the surface, when that
+/// move is shorter than `max_direct` (a face standing almost perpendicular
+/// to its input orientation can only be turned by such a move). Two steps
+/// each per triangle (1.5 and 3 times the step that reaches zero), at most
+/// four triangles.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn uninvert_steps(
     mesh: &Mesh,
     topo: &Topology,
@@ -568,7 +639,9 @@ pub(crate) fn uninvert_steps(
     positions: &[DVec3],
     input: &[DVec3],
     surface: &LocalSurface,
-    out: &mut Vec<(f64, f64)>,
+    max_direct: f64,
+    tangent: &mut Vec<(f64, f64)>,
+    direct: &mut Vec<DVec3>,
 ) {
     let mut found = 0;
     for &f in topo.vertex_faces(v) {
@@ -588,15 +661,159 @@ pub(crate) fn uninvert_steps(
             let g = (positions[a] - positions[b]).cross(m);
             let (gx, gy) = (g.dot(surface.frame.u), g.dot(surface.frame.v));
             let gg = gx * gx + gy * gy;
-            if gg.is_nan() || gg <= 0.0 {
-                continue;
+            if gg > 0.0 {
+                let t = -s / gg;
+                tangent.extend([1.5, 3.0].map(|k| (k * t * gx, k * t * gy)));
             }
-            let t = -s / gg;
-            out.extend([1.5, 3.0].map(|k| (k * t * gx, k * t * gy)));
+            let g3 = g.length_squared();
+            if g3 > 0.0 {
+                let step = (-s / g3) * g;
+                for k in [1.5, 3.0] {
+                    if k * step.length() <= max_direct {
+                        direct.push(positions[v] + k * step);
+                    }
+                }
+            }
             found += 1;
             if found == 4 {
                 return;
             }
         }
+    }
+}
+
+/// Mean tangent-plane distance from the vertex to its link vertices.
+pub(crate) fn link_radius(surface: &LocalSurface, link: &[u32], positions: &[DVec3]) -> f64 {
+    if link.is_empty() {
+        return 0.0;
+    }
+    let sum: f64 = link
+        .iter()
+        .map(|&w| {
+            let (x, y) = surface.tangent(positions[w as usize]);
+            (x * x + y * y).sqrt()
+        })
+        .sum();
+    sum / link.len() as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quality::fixtures::{at, grid};
+
+    #[test]
+    fn min_angle_cos_is_the_smallest_angle() {
+        let tris = [
+            [DVec3::ZERO, DVec3::X, DVec3::Y],
+            [
+                DVec3::ZERO,
+                DVec3::new(5.0, 0.1, 0.0),
+                DVec3::new(2.0, 0.3, 1.0),
+            ],
+            [
+                DVec3::ZERO,
+                DVec3::new(1.0, 0.0, 0.0),
+                DVec3::new(0.5, 3.0, -0.2),
+            ],
+        ];
+        for [a, b, c] in tris {
+            let smallest = [(a, b, c), (b, c, a), (c, a, b)]
+                .map(|(x, y, z)| (y - x).angle_between(z - x))
+                .into_iter()
+                .fold(f64::INFINITY, f64::min);
+            assert!((min_angle_cos(a, b, c) - smallest.cos()).abs() < 1e-12);
+            let all = triangle_cosines(a, b, c);
+            assert!((all.iter().fold(-1.0f64, |m, &x| m.max(x)) - smallest.cos()).abs() < 1e-12);
+        }
+        // A zero-length side is a 0° angle.
+        assert_eq!(min_angle_cos(DVec3::ZERO, DVec3::ZERO, DVec3::X), 1.0);
+    }
+
+    #[test]
+    fn twisted_and_inverted_quads() {
+        let input = [DVec3::ZERO, DVec3::X, DVec3::new(1.0, 1.0, 0.0), DVec3::Y];
+        let face = [0u32, 1, 2, 3];
+        assert!(!is_twisted(&face, &input));
+        assert!(!is_inverted(&face, &input, &input));
+        // A bow-tie: corners 1 and 2 swapped.
+        let bow = [input[0], input[2], input[1], input[3]];
+        assert!(is_twisted(&face, &bow));
+        // Mirrored: every normal flips.
+        let mirrored = input.map(|p| DVec3::new(p.x, -p.y, p.z));
+        assert!(is_inverted(&face, &mirrored, &input));
+        assert!(!is_twisted(&face, &mirrored));
+        let s = face_state(&face, &mirrored, &input);
+        assert!(s.inverted && !s.twisted);
+        assert!((s.max_cos - 45f64.to_radians().cos()).abs() < 1e-12);
+        assert!(s.wide_cos.abs() < 1e-12, "square corners are 90°");
+    }
+
+    #[test]
+    fn link_runs_counter_clockwise_around_the_normal() {
+        let m = grid(4);
+        let t = Topology::build(&m);
+        let v = at(4, 2, 2);
+        let mut link = Vec::new();
+        assert!(ordered_link(&m, &t, v, &mut link));
+        assert_eq!(link.len(), 8);
+        let c = m.positions()[v];
+        let angles: Vec<f64> = link
+            .iter()
+            .map(|&w| {
+                let d = m.positions()[w as usize] - c;
+                d.y.atan2(d.x)
+            })
+            .collect();
+        for k in 0..8 {
+            let mut step = angles[(k + 1) % 8] - angles[k];
+            if step < 0.0 {
+                step += std::f64::consts::TAU;
+            }
+            assert!(
+                (step - std::f64::consts::FRAC_PI_4).abs() < 1e-12,
+                "{angles:?}"
+            );
+        }
+        // A boundary vertex has no closed fan.
+        assert!(!ordered_link(&m, &t, at(4, 0, 2), &mut link));
+    }
+
+    #[test]
+    fn angle_based_target_recentres_a_displaced_vertex() {
+        let mut m = grid(4);
+        let t = Topology::build(&m);
+        let v = at(4, 2, 2);
+        let mut link = Vec::new();
+        let mut ring = Vec::new();
+        assert!(ordered_link(&m, &t, v, &mut link));
+        let s = LocalSurface::at(&m, &t, v, m.positions(), &mut ring).unwrap();
+        let (x, y) = angle_based_target(&s, &link, m.positions()).unwrap();
+        assert!(x.abs() < 1e-12 && y.abs() < 1e-12, "a regular vertex stays");
+        m.positions_mut()[v] += DVec3::new(0.3, -0.2, 0.0);
+        let s = LocalSurface::at(&m, &t, v, m.positions(), &mut ring).unwrap();
+        let (x, y) = angle_based_target(&s, &link, m.positions()).unwrap();
+        let target = s.point(x, y);
+        let centre = DVec3::new(2.0, 2.0, 0.0);
+        assert!(target.distance(centre) < 0.5 * m.positions()[v].distance(centre));
+        assert!(target.z.abs() < 1e-12, "stays on the plane");
+    }
+
+    #[test]
+    fn tester_judges_without_moving() {
+        let m = grid(3);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let v = at(3, 1, 1);
+        let mut tester = MoveTester::default();
+        tester.begin(&m, &t, &[v], &input, &input, 20f64.to_radians().cos());
+        assert!(!tester.needs_work());
+        // Pushing the vertex across its neighbour inverts faces.
+        let bad = tester.judge(&m, &[(v, DVec3::new(2.5, 1.0, 0.0))], &input);
+        assert!(bad.new_defect && bad.inverted.1 > 0 && !bad.improves(1.0));
+        // A small move shrinks the smallest angle: kept quality fails.
+        let worse = tester.judge(&m, &[(v, DVec3::new(1.2, 1.1, 0.0))], &input);
+        assert!(!worse.new_defect && !worse.keeps_quality() && !worse.improves(1.0));
+        assert_eq!(m.positions(), &input[..]);
     }
 }

@@ -5,8 +5,10 @@
 //! each chunk's partial sums are combined in chunk order, so the figures do
 //! not depend on the number of threads. Angles are binned through their
 //! cosines (no `acos` per corner); an angle within `1e-12` (in cosine) of a
-//! bin edge or a threshold counts as equal to it, so the right angles and
-//! 45° angles of voxel meshes land in the bins that start at 90° and 45°.
+//! bin edge counts as equal to it, so the right angles and 45° angles of
+//! voxel meshes land in the bins that start at 90° and 45°. The counts
+//! below and above thresholds are sums of whole bins (every threshold is a
+//! bin edge): "below 15" is `[0, 15)`, "above 120" is `[120, 180]`.
 
 use crate::mesh::{Mesh, Topology, VertexKind, vector_area};
 use crate::quality::local::{
@@ -23,31 +25,55 @@ use rayon::prelude::*;
 /// Items per parallel work chunk; fixed, so the summation order is too.
 const CHUNK: usize = 8192;
 
-/// Tolerance, in cosine, under which an angle counts as equal to a bin edge
-/// or threshold.
+/// Tolerance, in cosine, under which an angle counts as equal to a bin edge.
 const COS_EPS: f64 = 1e-12;
 
-/// Angle thresholds (degrees) counted below, in [`AngleStats`] order.
-const BELOW_DEG: [f64; 3] = [15.0, 20.0, 30.0];
-/// Angle thresholds (degrees) counted above, in [`AngleStats`] order.
-const ABOVE_DEG: [f64; 3] = [120.0, 150.0, 160.0];
+/// Cells of the uniform grid over the cosine range `[-1, 1]` that maps a
+/// cosine to its bin with one multiplication and one table look-up.
+const GRID: usize = 4096;
+/// Marks a grid cell that holds a bin edge (the exact comparison decides).
+const STRADDLE: u8 = u8::MAX;
 
-/// Cosines of the bin edges and thresholds, computed once per measure.
+/// Cosines of the bin edges, and the grid, computed once per measure.
 struct AngleTable {
-    /// `cos(5 k deg)` for `k = 1..ANGLE_BINS` (the inner bin edges),
-    /// decreasing.
+    /// `cos(5 k deg) + COS_EPS` for `k = 1..ANGLE_BINS` (the inner bin
+    /// edges), decreasing.
     edges: [f64; ANGLE_BINS - 1],
-    below: [f64; 3],
-    above: [f64; 3],
+    /// Bin of every cosine in grid cell `k`, which covers `[-1 + 2k/GRID,
+    /// -1 + 2(k+1)/GRID)`, or `STRADDLE`.
+    cells: Vec<u8>,
 }
 
 impl AngleTable {
     fn new() -> Self {
-        let c = |deg: f64| deg.to_radians().cos();
-        AngleTable {
-            edges: std::array::from_fn(|k| c((k + 1) as f64 * ANGLE_BIN_DEG)),
-            below: BELOW_DEG.map(c),
-            above: ABOVE_DEG.map(c),
+        let edges: [f64; ANGLE_BINS - 1] =
+            std::array::from_fn(|k| ((k + 1) as f64 * ANGLE_BIN_DEG).to_radians().cos() + COS_EPS);
+        // A margin well above rounding in the cell index keeps a cosine
+        // next to a cell border from taking the neighbour cell's bin.
+        let margin = 1e-9;
+        let width = 2.0 / GRID as f64;
+        let cells = (0..=GRID)
+            .map(|k| {
+                let lo = -1.0 + k as f64 * width - margin;
+                let hi = lo + width + 2.0 * margin;
+                if edges.iter().any(|&e| e >= lo && e < hi) {
+                    STRADDLE
+                } else {
+                    edges.iter().filter(|&&e| e >= hi).count() as u8
+                }
+            })
+            .collect();
+        AngleTable { edges, cells }
+    }
+
+    /// The bin of an angle with cosine `c`: the number of inner edges it
+    /// reaches.
+    #[inline]
+    fn bin(&self, c: f64) -> usize {
+        let k = (((c + 1.0) * (GRID as f64 * 0.5)) as usize).min(GRID);
+        match self.cells[k] {
+            STRADDLE => self.edges.partition_point(|&e| c <= e),
+            b => b as usize,
         }
     }
 }
@@ -58,8 +84,6 @@ struct AngleAcc {
     count: u64,
     max_cos: f64,
     min_cos: f64,
-    below: [u64; 3],
-    above: [u64; 3],
     histogram: [u64; ANGLE_BINS],
 }
 
@@ -69,8 +93,6 @@ impl AngleAcc {
             count: 0,
             max_cos: f64::NEG_INFINITY,
             min_cos: f64::INFINITY,
-            below: [0; 3],
-            above: [0; 3],
             histogram: [0; ANGLE_BINS],
         }
     }
@@ -80,27 +102,13 @@ impl AngleAcc {
         self.count += 1;
         self.max_cos = self.max_cos.max(c);
         self.min_cos = self.min_cos.min(c);
-        // The bin is the number of inner edges the angle reaches.
-        let bin = t.edges.partition_point(|&e| c <= e + COS_EPS);
-        self.histogram[bin] += 1;
-        for (n, &b) in self.below.iter_mut().zip(&t.below) {
-            *n += (c > b + COS_EPS) as u64;
-        }
-        for (n, &a) in self.above.iter_mut().zip(&t.above) {
-            *n += (c < a - COS_EPS) as u64;
-        }
+        self.histogram[t.bin(c)] += 1;
     }
 
     fn merge(&mut self, o: &AngleAcc) {
         self.count += o.count;
         self.max_cos = self.max_cos.max(o.max_cos);
         self.min_cos = self.min_cos.min(o.min_cos);
-        for (a, b) in self.below.iter_mut().zip(&o.below) {
-            *a += b;
-        }
-        for (a, b) in self.above.iter_mut().zip(&o.above) {
-            *a += b;
-        }
         for (a, b) in self.histogram.iter_mut().zip(&o.histogram) {
             *a += b;
         }
@@ -109,16 +117,19 @@ impl AngleAcc {
     fn finish(&self) -> AngleStats {
         let deg = |c: f64| c.clamp(-1.0, 1.0).acos().to_degrees();
         let some = self.count > 0;
+        // Every threshold is a bin edge: count whole bins.
+        let below = |d: f64| -> u64 { self.histogram[..(d / ANGLE_BIN_DEG) as usize].iter().sum() };
+        let from = |d: f64| -> u64 { self.histogram[(d / ANGLE_BIN_DEG) as usize..].iter().sum() };
         AngleStats {
             count: self.count,
             min_deg: some.then(|| deg(self.max_cos)),
             max_deg: some.then(|| deg(self.min_cos)),
-            below_15: self.below[0],
-            below_20: self.below[1],
-            below_30: self.below[2],
-            above_120: self.above[0],
-            above_150: self.above[1],
-            above_160: self.above[2],
+            below_15: below(15.0),
+            below_20: below(20.0),
+            below_30: below(30.0),
+            above_120: from(120.0),
+            above_150: from(150.0),
+            above_160: from(160.0),
             histogram: self.histogram.to_vec(),
         }
     }
@@ -208,31 +219,14 @@ fn face_pass(mesh: &Mesh, positions: &[DVec3], input: &[DVec3], table: &AngleTab
             };
             for f in c * CHUNK..((c + 1) * CHUNK).min(nf) {
                 let face = mesh.face(f);
-                let k = face.len();
-                let mut prev = positions[face[k - 1] as usize];
-                for j in 0..k {
-                    let p = positions[face[j] as usize];
-                    acc.side_sum += p.distance(prev);
-                    prev = p;
-                }
-                acc.sides += k as u64;
-                acc.volume += fan_volume(face, positions);
-                acc.input_volume += fan_volume(face, input);
-                acc.twisted += is_twisted(face, positions) as u64;
-                acc.inverted += is_inverted(face, positions, input) as u64;
-                if has_repeated_corner(face) {
-                    continue;
-                }
-                for_each_split_triangle(face, positions, |a, b, c| {
-                    for x in triangle_cosines(a, b, c) {
-                        acc.triangles.add(table, x);
+                match face.len() {
+                    3 if !has_repeated_corner(face) => {
+                        measure_triangle(face, positions, input, table, &mut acc)
                     }
-                });
-                for j in 0..k {
-                    let p = positions[face[j] as usize];
-                    let a = positions[face[(j + k - 1) % k] as usize];
-                    let b = positions[face[(j + 1) % k] as usize];
-                    acc.corners.add(table, cos_between(a - p, b - p));
+                    4 if !has_repeated_corner(face) => {
+                        measure_quad(face, positions, input, table, &mut acc)
+                    }
+                    _ => measure_polygon(face, positions, input, table, &mut acc),
                 }
             }
             acc
@@ -263,6 +257,138 @@ fn face_pass(mesh: &Mesh, positions: &[DVec3], input: &[DVec3], table: &AngleTab
     total
 }
 
+/// Cosine from a dot product and the product of two lengths; 1 (a 0°
+/// angle) when the product is zero or the quotient is not a number.
+#[inline]
+fn cos_ll(dot: f64, ll: f64) -> f64 {
+    if ll > 0.0 {
+        let c = dot / ll;
+        if c.is_nan() { 1.0 } else { c.clamp(-1.0, 1.0) }
+    } else {
+        1.0
+    }
+}
+
+/// A triangle with three distinct corners.
+#[inline]
+fn measure_triangle(
+    face: &[u32],
+    positions: &[DVec3],
+    input: &[DVec3],
+    table: &AngleTable,
+    acc: &mut FaceAcc,
+) {
+    let [p0, p1, p2] = [0, 1, 2].map(|j| positions[face[j] as usize]);
+    let [q0, q1, q2] = [0, 1, 2].map(|j| input[face[j] as usize]);
+    let (e01, e12, e20) = (p1 - p0, p2 - p1, p0 - p2);
+    let (l01, l12, l20) = (e01.length(), e12.length(), e20.length());
+    acc.side_sum += l01 + l12 + l20;
+    acc.sides += 3;
+    let n = e01.cross(-e20);
+    let m = (q1 - q0).cross(q2 - q0);
+    acc.inverted += (n.dot(m) < 0.0) as u64;
+    acc.volume += p0.dot(p1.cross(p2));
+    acc.input_volume += q0.dot(q1.cross(q2));
+    for c in [
+        cos_ll(-e01.dot(e20), l01 * l20),
+        cos_ll(-e12.dot(e01), l12 * l01),
+        cos_ll(-e20.dot(e12), l20 * l12),
+    ] {
+        acc.triangles.add(table, c);
+        acc.corners.add(table, c);
+    }
+}
+
+/// A quad with four distinct corners: split triangles `(p0 p1 p2)` and
+/// `(p0 p2 p3)`, sharing all their side lengths with the corners.
+#[inline]
+fn measure_quad(
+    face: &[u32],
+    positions: &[DVec3],
+    input: &[DVec3],
+    table: &AngleTable,
+    acc: &mut FaceAcc,
+) {
+    let [p0, p1, p2, p3] = [0, 1, 2, 3].map(|j| positions[face[j] as usize]);
+    let [q0, q1, q2, q3] = [0, 1, 2, 3].map(|j| input[face[j] as usize]);
+    let (e01, e12, e23, e30, d02) = (p1 - p0, p2 - p1, p3 - p2, p0 - p3, p2 - p0);
+    let (l01, l12, l23, l30, l02) = (
+        e01.length(),
+        e12.length(),
+        e23.length(),
+        e30.length(),
+        d02.length(),
+    );
+    acc.side_sum += l01 + l12 + l23 + l30;
+    acc.sides += 4;
+    let n1 = e01.cross(d02);
+    let n2 = d02.cross(-e30);
+    let g02 = q2 - q0;
+    let m1 = (q1 - q0).cross(g02);
+    let m2 = g02.cross(q3 - q0);
+    acc.twisted += (n1.dot(n2) < 0.0) as u64;
+    acc.inverted += (n1.dot(m1) < 0.0 || n2.dot(m2) < 0.0 || (n1 + n2).dot(m1 + m2) < 0.0) as u64;
+    acc.volume += p0.dot(p1.cross(p2) + p2.cross(p3));
+    acc.input_volume += q0.dot(q1.cross(q2) + q2.cross(q3));
+    let at1 = cos_ll(-e01.dot(e12), l01 * l12);
+    let at3 = cos_ll(-e23.dot(e30), l23 * l30);
+    for c in [
+        cos_ll(e01.dot(d02), l01 * l02),
+        at1,
+        cos_ll(e12.dot(d02), l12 * l02),
+        cos_ll(-d02.dot(e30), l02 * l30),
+        cos_ll(-d02.dot(e23), l02 * l23),
+        at3,
+    ] {
+        acc.triangles.add(table, c);
+    }
+    for c in [
+        cos_ll(-e01.dot(e30), l01 * l30),
+        at1,
+        cos_ll(-e12.dot(e23), l12 * l23),
+        at3,
+    ] {
+        acc.corners.add(table, c);
+    }
+}
+
+/// Any face: polygons, and faces with a repeated corner (left out of the
+/// angle counts).
+fn measure_polygon(
+    face: &[u32],
+    positions: &[DVec3],
+    input: &[DVec3],
+    table: &AngleTable,
+    acc: &mut FaceAcc,
+) {
+    let k = face.len();
+    let mut prev = positions[face[k - 1] as usize];
+    for j in 0..k {
+        let p = positions[face[j] as usize];
+        acc.side_sum += p.distance(prev);
+        prev = p;
+    }
+    acc.sides += k as u64;
+    acc.volume += fan_volume(face, positions);
+    acc.input_volume += fan_volume(face, input);
+    acc.twisted += is_twisted(face, positions) as u64;
+    acc.inverted += is_inverted(face, positions, input) as u64;
+    if has_repeated_corner(face) {
+        return;
+    }
+    for_each_split_triangle(face, positions, |a, b, c| {
+        for x in triangle_cosines(a, b, c) {
+            acc.triangles.add(table, x);
+        }
+    });
+    for j in 0..k {
+        let p = positions[face[j] as usize];
+        let a = positions[face[(j + k - 1) % k] as usize];
+        let b = positions[face[(j + 1) % k] as usize];
+        acc.corners.add(table, cos_between(a - p, b - p));
+    }
+}
+
 /// Six times the signed volume of the cone from the origin over `face`
 /// (fan from corner 0).
 #[inline]
@@ -273,6 +399,34 @@ fn fan_volume(face: &[u32], positions: &[DVec3]) -> f64 {
         v += o.dot(positions[face[j] as usize].cross(positions[face[j + 1] as usize]));
     }
     v
+}
+
+/// Mean length of the face sides (each side counted once per face, as
+/// [`crate::mesh::mean_edge_length`]), in parallel with a fixed summation
+/// order; 0 without faces.
+pub(crate) fn mean_side_length(mesh: &Mesh, positions: &[DVec3]) -> f64 {
+    let nf = mesh.num_faces();
+    let chunks: Vec<(f64, u64)> = (0..nf.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let (mut sum, mut count) = (0.0, 0u64);
+            for f in c * CHUNK..((c + 1) * CHUNK).min(nf) {
+                let face = mesh.face(f);
+                let mut prev = positions[face[face.len() - 1] as usize];
+                for &v in face {
+                    let p = positions[v as usize];
+                    sum += p.distance(prev);
+                    prev = p;
+                }
+                count += face.len() as u64;
+            }
+            (sum, count)
+        })
+        .collect();
+    let (sum, count) = chunks
+        .iter()
+        .fold((0.0, 0u64), |a, b| (a.0 + b.0, a.1 + b.1));
+    if count == 0 { 0.0 } else { sum / count as f64 }
 }
 
 /// Short edges and boundary edges.
@@ -377,4 +531,182 @@ pub fn mesh_statistics(mesh: &Mesh, topo: &Topology) -> MeshStatistics {
     s.components = topo.num_components() as u64;
     s.closed = s.boundary_edges == 0;
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quality::fixtures::{at, grid, radially_projected_sphere};
+
+    fn unit_cube() -> Mesh {
+        let p = (0..8)
+            .map(|i| DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64))
+            .collect();
+        let faces = [
+            [0u32, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        Mesh::from_polygons(p, &faces).unwrap()
+    }
+
+    #[test]
+    fn cube_angles_volume_and_counts() {
+        let m = unit_cube();
+        let t = Topology::build(&m);
+        let p = m.positions();
+        let s = measure_stage(&m, &t, p, p, None, 0.2);
+        assert_eq!(s.mean_edge_length, 1.0);
+        assert_eq!(s.triangle_angles.count, 36);
+        // Each quad splits into two right isosceles triangles.
+        assert_eq!(s.triangle_angles.histogram[9], 24, "45° angles in [45, 50)");
+        assert_eq!(
+            s.triangle_angles.histogram[18], 12,
+            "90° angles in [90, 95)"
+        );
+        assert_eq!(s.triangle_angles.histogram.iter().sum::<u64>(), 36);
+        assert!((s.triangle_angles.min_deg.unwrap() - 45.0).abs() < 1e-9);
+        assert!((s.triangle_angles.max_deg.unwrap() - 90.0).abs() < 1e-9);
+        assert_eq!(s.polygon_angles.count, 24);
+        assert_eq!(s.polygon_angles.histogram[18], 24);
+        assert_eq!(s.triangle_angles.below_15 + s.triangle_angles.above_120, 0);
+        assert_eq!(
+            (s.twisted_quads, s.inverted_faces, s.short_edges),
+            (0, 0, 0)
+        );
+        let vol = s.volume.unwrap();
+        assert!((vol.volume - 1.0).abs() < 1e-12);
+        assert_eq!(vol.relative_change, Some(0.0));
+        assert_eq!(s.displacement, Displacement::default());
+        assert!(s.curvature_variation.is_none());
+    }
+
+    #[test]
+    fn mirror_inverts_every_face_and_the_volume() {
+        let m = unit_cube();
+        let t = Topology::build(&m);
+        let mirrored: Vec<DVec3> = m
+            .positions()
+            .iter()
+            .map(|p| DVec3::new(-p.x, p.y, p.z))
+            .collect();
+        let s = measure_stage(&m, &t, &mirrored, m.positions(), None, 0.2);
+        // A mirror in x keeps the normals of the two x faces (reflected and
+        // reversed) and turns the other four over.
+        assert_eq!(s.inverted_faces, 4);
+        let vol = s.volume.unwrap();
+        assert!((vol.volume + 1.0).abs() < 1e-12);
+        assert!((vol.relative_change.unwrap() + 2.0).abs() < 1e-12);
+        // Every vertex with x = 1 moved by 2, the others not at all.
+        assert!((s.displacement.max - 2.0).abs() < 1e-12);
+        assert!((s.displacement.mean - 1.0).abs() < 1e-12);
+        assert!((s.displacement.rms - 2f64.sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn twisted_short_and_sharp_counts_on_a_grid() {
+        let m = grid(3);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let mut p = input.clone();
+        // Vertex (1,1) pulled to within 0.1 of (2,1): one short edge and
+        // slivers; vertex (1,2) pushed across (2,2): twisted quads.
+        p[at(3, 1, 1)] = DVec3::new(1.9, 1.0, 0.0);
+        p[at(3, 1, 2)] = DVec3::new(2.4, 2.0, 0.3);
+        let s = measure_stage(&m, &t, &p, &input, None, 0.2);
+        assert_eq!(s.short_edges, 1);
+        assert!(s.twisted_quads >= 1);
+        assert!(s.inverted_faces >= 1);
+        assert!(s.triangle_angles.below_15 > 0);
+        assert!(s.volume.is_none(), "an open grid has no volume");
+    }
+
+    #[test]
+    fn curvature_variation_is_the_mean_of_the_largest_neighbour_jump() {
+        let m = grid(1); // one quad (0 1 3 2): each vertex has two neighbours
+        let t = Topology::build(&m);
+        let p = m.positions();
+        let hk = [(0.0, 0.0), (1.0, 0.0), (3.0, 0.0), (0.5, 0.0)];
+        // Face (0 1 3 2): neighbours 0-1, 1-3, 3-2, 2-0. Largest jumps:
+        // 3, 1, 3, 2.5; mean 2.375.
+        let s = measure_stage(&m, &t, p, p, Some(&hk), 0.2);
+        let cv = s.curvature_variation.unwrap();
+        assert!((cv.mean - 2.375).abs() < 1e-12);
+        assert!((cv.mean_scaled - 2.375 * s.mean_edge_length).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bins_match_acos_except_at_the_edges() {
+        let t = AngleTable::new();
+        let mut c = -1.0f64;
+        while c <= 1.0 {
+            let deg = c.acos().to_degrees();
+            let expected = ((deg / ANGLE_BIN_DEG) as usize).min(ANGLE_BINS - 1);
+            let edge_dist = (deg / ANGLE_BIN_DEG - (deg / ANGLE_BIN_DEG).round()).abs();
+            if edge_dist > 1e-6 {
+                assert_eq!(t.bin(c), expected, "cos {c} = {deg}°");
+            }
+            c += 1.0 / 4093.0;
+        }
+        assert_eq!(t.bin(0.0), 18);
+        assert_eq!(t.bin(1.0), 0);
+        assert_eq!(t.bin(-1.0), ANGLE_BINS - 1);
+        assert_eq!(t.bin(45f64.to_radians().cos()), 9);
+    }
+
+    #[test]
+    fn measures_do_not_depend_on_the_thread_count() {
+        let (m, p) = radially_projected_sphere(10.0);
+        let t = Topology::build(&m);
+        let hk: Vec<(f64, f64)> = p.iter().map(|q| (q.x.sin(), 0.0)).collect();
+        let run = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| measure_stage(&m, &t, &p, m.positions(), Some(&hk), 0.2))
+        };
+        let one = run(1);
+        assert_eq!(one, run(3));
+        assert!(one.triangle_angles.below_15 > 0, "the fixture has slivers");
+    }
+
+    #[test]
+    fn statistics_of_a_mesh_with_every_kind_of_vertex() {
+        // A fin (three triangles on edge 0-1), a degenerate quad, an
+        // isolated vertex 9.
+        let mut p = vec![DVec3::ZERO; 10];
+        p[1] = DVec3::X;
+        p[2] = DVec3::Y;
+        p[3] = DVec3::Z;
+        p[4] = DVec3::new(1.0, 1.0, 1.0);
+        p[5] = DVec3::new(5.0, 0.0, 0.0);
+        p[6] = DVec3::new(6.0, 0.0, 0.0);
+        p[7] = DVec3::new(6.0, 1.0, 0.0);
+        let faces: Vec<Vec<u32>> = vec![
+            vec![0, 1, 2],
+            vec![1, 0, 3],
+            vec![0, 1, 4],
+            vec![5, 6, 7, 7],
+            vec![5, 6, 7, 8, 8],
+        ];
+        let m = Mesh::from_polygons(p, &faces).unwrap();
+        let t = Topology::build(&m);
+        let s = mesh_statistics(&m, &t);
+        assert_eq!((s.vertices, s.faces), (10, 5));
+        assert_eq!(
+            (s.triangles, s.quads, s.polygons, s.max_face_arity),
+            (3, 1, 1, 5)
+        );
+        assert_eq!(s.non_manifold_edges, 1);
+        assert_eq!(s.max_faces_per_edge, 3);
+        assert_eq!(s.isolated_vertices, 1);
+        assert_eq!(s.degenerate_faces, 2);
+        assert_eq!(s.components, 2);
+        assert!(!s.closed);
+        assert!(s.boundary_edges > 0 && s.boundary_vertices > 0 && s.non_manifold_vertices >= 2);
+    }
 }

@@ -6,29 +6,46 @@
 //! For a vertex `v` with its ordered link `l_0 .. l_{m-1}` (the other
 //! corners of its faces, around `v`), the angle-based target is the mean
 //! over `j` of `v` rotated about `l_j`, in the tangent plane, onto the
-//! bisector of the link's interior angle at `l_j`. The candidates tried are
-//! that target and the link centroid, each at full, half and quarter step;
-//! each candidate's tangent-plane point is lifted onto the quadric fitted
-//! to `v`'s 2-ring (section 3) in the frame of its current position and
-//! normal. The candidate kept is the one that leaves the fewest inverted
-//! faces, then the fewest twisted quads, then the largest smallest angle
-//! among `v`'s faces; it is kept only when it improves on the current
-//! position (see [`MoveTester`]): no face becomes inverted relative to the
-//! input, no quad becomes twisted, and either a defect goes away or the
-//! smallest split-triangle angle of `v`'s faces grows. Otherwise `v` stays.
+//! bisector of the link's interior angle at `l_j`. The candidates tried, in
+//! order: that target and the link centroid at full, half and quarter step,
+//! the vertex's own foot point (no tangent step), and, for each split
+//! triangle at `v` inverted relative to the input, the tangent step that
+//! turns it back. Each is a tangent-plane point lifted onto the quadric
+//! fitted to `v`'s 2-ring (section 3) in the frame of its current position
+//! and normal. Last come the exact steps that turn an inverted triangle
+//! back by moving off the surface, allowed up to a twentieth of the mean
+//! distance to the link (a face standing almost perpendicular to its input
+//! orientation turns only that way).
 //!
-//! Order: Gauss-Seidel, sequential, vertices in ascending index order
-//! within a sweep, so the result is deterministic. Sweep 1 visits the
-//! corners of every face with a sharp angle or an inverted split triangle;
-//! each later sweep visits only such corners among the faces around the
-//! vertices moved in the sweep before, and the fix stops after a sweep that
-//! moves nothing or after `max_sweeps`. Only interior vertices whose faces
+//! A candidate counts only when it improves on the current position: no
+//! face becomes inverted relative to the input, no quad becomes twisted,
+//! no quad corner divided by its split opens beyond 160° (or beyond its
+//! angle before, if wider), and either a defect goes away or the smallest
+//! split-triangle angle of `v`'s faces grows. The first candidate that
+//! leaves no defect and no angle below the threshold is taken; otherwise
+//! the best (fewest inverted faces, then fewest twisted quads, then the
+//! largest smallest angle); otherwise `v` stays. A vertex stuck in one
+//! sweep and visited again in the next also tries a pattern search: eight
+//! tangent directions at three step sizes, lifted likewise.
+//!
+//! Order: sweeps of colour classes. Sweep 1 visits the interior corners of
+//! every face with a sharp angle or an inverted split triangle; each later
+//! sweep visits those of the faces around the vertices moved (or, after a
+//! sweep that moved nothing, stuck) in the sweep before. A sweep colours
+//! its vertices greedily in ascending index order so that no two vertices
+//! of a class are within two edges of each other or share a face; the
+//! classes run one after another, the vertices of a class in parallel. A
+//! visit reads only positions within two edges or one face of its vertex
+//! and writes only its vertex, so the result is that of a Gauss-Seidel
+//! sweep in class order and does not depend on the thread count. The fix
+//! stops after `max_sweeps` sweeps, or when a sweep moves nothing and the
+//! pattern search has had its sweep. Only interior vertices whose faces
 //! form one closed fan move; boundary, non-manifold and isolated vertices
 //! stay.
 
 use super::local::{
     LocalSurface, MoveTester, Verdict, angle_based_target, face_state, has_repeated_corner,
-    link_centroid, ordered_link, uninvert_steps,
+    link_centroid, link_radius, max_split_cos, ordered_link, uninvert_steps,
 };
 use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::DVec3;
@@ -58,66 +75,138 @@ pub(crate) struct Relocator {
     ring: Vec<u32>,
     link: Vec<u32>,
     targets: Vec<(f64, f64)>,
+    off_surface: Vec<DVec3>,
+    candidates: Vec<DVec3>,
     tester: MoveTester,
 }
 
+/// Longest off-surface move that turns an inverted triangle, in units of the
+/// vertex's mean tangent distance to its link.
+const MAX_OFF_SURFACE: f64 = 0.05;
+
 /// Ranks a tried position: fewer inverted faces, then fewer twisted quads,
-/// then a larger smallest angle, is better (smaller key).
-fn rank(v: &Verdict) -> (u32, u32, f64) {
-    (v.inverted.1, v.twisted.1, v.max_cos.1)
+/// then a smaller angle deficit, then a larger smallest angle, is better
+/// (smaller key).
+fn rank(v: &Verdict) -> (u32, u32, f64, f64) {
+    (v.inverted.1, v.twisted.1, v.deficit.1, v.max_cos.1)
+}
+
+/// What a visit of a vertex found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum Visit {
+    /// None of its faces needed work (or it may not move).
+    Skipped,
+    /// It should move here.
+    Moved(DVec3),
+    /// No candidate was an improvement; it stays.
+    Stuck,
 }
 
 impl Relocator {
-    /// Moves interior vertex `v` to the best of its angle-based candidates
-    /// if that improves its faces; returns whether it moved.
+    /// The best of interior vertex `v`'s candidate positions if that
+    /// improves its faces (`positions` is not changed). A face needs work
+    /// when it is inverted, twisted, or its smallest split-triangle angle
+    /// has a cosine above `cos_goal`; a vertex none of whose faces needs
+    /// work is skipped. The first candidate that leaves no defect and every
+    /// angle at or above the goal is taken at once. `thorough` adds the
+    /// pattern search when no other candidate helps.
+    #[allow(clippy::too_many_arguments)]
     pub fn relocate(
         &mut self,
         mesh: &Mesh,
         topo: &Topology,
         v: usize,
-        positions: &mut [DVec3],
+        positions: &[DVec3],
         input: &[DVec3],
-    ) -> bool {
-        if topo.kind(v) != VertexKind::Interior || !ordered_link(mesh, topo, v, &mut self.link) {
-            return false;
+        cos_goal: f64,
+        cos_floor: f64,
+        thorough: bool,
+    ) -> Visit {
+        if topo.kind(v) != VertexKind::Interior {
+            return Visit::Skipped;
+        }
+        self.tester
+            .begin(mesh, topo, &[v], positions, input, cos_goal);
+        if !self.tester.needs_work() || !ordered_link(mesh, topo, v, &mut self.link) {
+            return Visit::Skipped;
         }
         let Some(surface) = LocalSurface::at(mesh, topo, v, positions, &mut self.ring) else {
-            return false;
+            return Visit::Skipped;
         };
         let mut targets = std::mem::take(&mut self.targets);
         targets.clear();
-        for (x, y) in [
-            angle_based_target(&surface, &self.link, positions),
-            link_centroid(&surface, &self.link, positions),
-        ]
-        .into_iter()
-        .flatten()
-        {
-            targets.extend([1.0, 0.5, 0.25].map(|s| (s * x, s * y)));
+        let zs = angle_based_target(&surface, &self.link, positions);
+        let centroid = link_centroid(&surface, &self.link, positions);
+        for step in [1.0, 0.5, 0.25] {
+            for (x, y) in [zs, centroid].into_iter().flatten() {
+                targets.push((step * x, step * y));
+            }
         }
         targets.push((0.0, 0.0));
-        uninvert_steps(mesh, topo, v, positions, input, &surface, &mut targets);
-        self.tester.begin(mesh, topo, &[v], positions, input);
-        let mut best: Option<((u32, u32, f64), DVec3)> = None;
-        for &(x, y) in &targets {
-            let p = surface.point(x, y);
+        let mut off_surface = std::mem::take(&mut self.off_surface);
+        off_surface.clear();
+        let radius = link_radius(&surface, &self.link, positions);
+        uninvert_steps(
+            mesh,
+            topo,
+            v,
+            positions,
+            input,
+            &surface,
+            MAX_OFF_SURFACE * radius,
+            &mut targets,
+            &mut off_surface,
+        );
+        // Lifted candidates first, then the off-surface ones.
+        let mut candidates = std::mem::take(&mut self.candidates);
+        candidates.clear();
+        candidates.extend(targets.iter().map(|&(x, y)| surface.point(x, y)));
+        candidates.extend_from_slice(&off_surface);
+        let mut best = self.best_of(mesh, v, &candidates, positions, cos_floor);
+        if best.is_none() && thorough {
+            candidates.clear();
+            for step in [0.25, 0.1, 0.04] {
+                for k in 0..8 {
+                    let (sin, cos) = (k as f64 * std::f64::consts::FRAC_PI_4).sin_cos();
+                    candidates.push(surface.point(step * radius * cos, step * radius * sin));
+                }
+            }
+            best = self.best_of(mesh, v, &candidates, positions, cos_floor);
+        }
+        self.targets = targets;
+        self.off_surface = off_surface;
+        self.candidates = candidates;
+        best.map_or(Visit::Stuck, Visit::Moved)
+    }
+
+    /// The best improving position among `candidates`, stopping at the
+    /// first that reaches the goal.
+    fn best_of(
+        &self,
+        mesh: &Mesh,
+        v: usize,
+        candidates: &[DVec3],
+        positions: &[DVec3],
+        cos_floor: f64,
+    ) -> Option<DVec3> {
+        let cos_goal = self.tester.cos_goal();
+        let mut best: Option<((u32, u32, f64, f64), DVec3)> = None;
+        for &p in candidates {
             if !p.is_finite() {
                 continue;
             }
-            let verdict = self.tester.apply(mesh, &[(v, p)], positions);
-            self.tester.undo(positions);
-            if verdict.improves() && best.is_none_or(|(k, _)| rank(&verdict) < k) {
+            let verdict = self.tester.judge(mesh, &[(v, p)], positions);
+            if verdict.improves(cos_floor) && best.is_none_or(|(k, _)| rank(&verdict) < k) {
+                if verdict.inverted.1 == 0
+                    && verdict.twisted.1 == 0
+                    && verdict.max_cos.1 <= cos_goal
+                {
+                    return Some(p);
+                }
                 best = Some((rank(&verdict), p));
             }
         }
-        self.targets = targets;
-        match best {
-            Some((_, p)) => {
-                positions[v] = p;
-                true
-            }
-            None => false,
-        }
+        best.map(|(_, p)| p)
     }
 }
 
@@ -137,7 +226,7 @@ fn count_sharp(mesh: &Mesh, positions: &[DVec3], cos_limit: f64) -> u64 {
         .with_min_len(4096)
         .filter(|&f| {
             let face = mesh.face(f);
-            !has_repeated_corner(face) && super::local::max_split_cos(face, positions) > cos_limit
+            !has_repeated_corner(face) && max_split_cos(face, positions) > cos_limit
         })
         .count() as u64
 }
@@ -156,35 +245,77 @@ pub fn fix_sharp_angles(
     max_sweeps: u32,
 ) -> SharpAngleStats {
     let cos_limit = sharp_angle_deg.to_radians().cos();
-    let mut stats = SharpAngleStats {
-        faces_found: count_sharp(mesh, positions, cos_limit),
-        ..SharpAngleStats::default()
-    };
     let p: &[DVec3] = positions;
-    let bad_faces: Vec<u32> = (0..mesh.num_faces() as u32)
+    // Faces that need work, with the cosine of their smallest angle.
+    let bad_faces: Vec<(u32, f64)> = (0..mesh.num_faces() as u32)
         .into_par_iter()
         .with_min_len(4096)
-        .filter(|&f| needs_work(mesh.face(f as usize), p, input, cos_limit))
+        .filter_map(|f| {
+            let face = mesh.face(f as usize);
+            if has_repeated_corner(face) {
+                return None;
+            }
+            let s = face_state(face, p, input);
+            (s.max_cos > cos_limit || s.inverted).then_some((f, s.max_cos))
+        })
         .collect();
+    let mut stats = SharpAngleStats {
+        faces_found: bad_faces.iter().filter(|b| b.1 > cos_limit).count() as u64,
+        ..SharpAngleStats::default()
+    };
+    // The mesh's smallest angle now: no move may go below it.
+    let cos_floor = bad_faces.iter().map(|b| b.1).fold(cos_limit, f64::max);
+    let bad_faces: Vec<u32> = bad_faces.into_iter().map(|b| b.0).collect();
     let mut visit = corners_of(mesh, topo, &bad_faces);
-    let mut relocator = Relocator::default();
-    let mut moved = Vec::new();
-    let mut faces = Vec::new();
-    while stats.sweeps < max_sweeps as u64 && !visit.is_empty() {
+    let mut colouring = Colouring::new(mesh.num_vertices());
+    let mut stuck: Vec<u32> = Vec::new();
+    let mut moved: Vec<u32> = Vec::new();
+    let mut searched = false;
+    while !visit.is_empty() && stats.sweeps < max_sweeps as u64 {
         stats.sweeps += 1;
+        colouring.colour(mesh, topo, &visit);
+        let previously_stuck = std::mem::take(&mut stuck);
         moved.clear();
-        for &v in &visit {
-            if relocator.relocate(mesh, topo, v as usize, positions, input) {
-                moved.push(v);
-                stats.moves += 1;
-            } else {
-                stats.rejected += 1;
+        for class in colouring.classes() {
+            let p: &[DVec3] = positions;
+            let results: Vec<Visit> = class
+                .par_iter()
+                .with_min_len(64)
+                .map_init(Relocator::default, |r, &v| {
+                    let thorough = previously_stuck.binary_search(&v).is_ok();
+                    r.relocate(
+                        mesh, topo, v as usize, p, input, cos_limit, cos_floor, thorough,
+                    )
+                })
+                .collect();
+            for (&v, visit) in class.iter().zip(results) {
+                match visit {
+                    Visit::Moved(q) => {
+                        positions[v as usize] = q;
+                        moved.push(v);
+                        stats.moves += 1;
+                    }
+                    Visit::Stuck => {
+                        stuck.push(v);
+                        stats.rejected += 1;
+                    }
+                    Visit::Skipped => {}
+                }
             }
         }
-        faces.clear();
-        for &v in &moved {
-            faces.extend_from_slice(topo.vertex_faces(v as usize));
+        stuck.sort_unstable();
+        if moved.is_empty() {
+            // Give the stuck vertices one sweep with the pattern search.
+            if searched {
+                break;
+            }
+            searched = true;
         }
+        let around = if moved.is_empty() { &stuck } else { &moved };
+        let mut faces: Vec<u32> = around
+            .iter()
+            .flat_map(|&v| topo.vertex_faces(v as usize).iter().copied())
+            .collect();
         faces.sort_unstable();
         faces.dedup();
         faces.retain(|&f| needs_work(mesh.face(f as usize), positions, input, cos_limit));
@@ -204,4 +335,227 @@ fn corners_of(mesh: &Mesh, topo: &Topology, faces: &[u32]) -> Vec<u32> {
     out.sort_unstable();
     out.dedup();
     out
+}
+
+/// Greedy colouring of a vertex list such that no two vertices of a class
+/// are within two edges of each other or share a face.
+struct Colouring {
+    /// Colour per mesh vertex; `NONE` when not in the current list.
+    colour: Vec<u8>,
+    /// Vertices grouped by class, class by class (CSR).
+    order: Vec<u32>,
+    starts: Vec<usize>,
+    coloured: Vec<u32>,
+}
+
+const NONE: u8 = u8::MAX;
+/// Classes beyond this many hold one vertex each (very high valence).
+const MAX_CLASSES: usize = 64;
+
+impl Colouring {
+    fn new(num_vertices: usize) -> Self {
+        Colouring {
+            colour: vec![NONE; num_vertices],
+            order: Vec::new(),
+            starts: Vec::new(),
+            coloured: Vec::new(),
+        }
+    }
+
+    /// Colours `vertices` (ascending) greedily in that order.
+    fn colour(&mut self, mesh: &Mesh, topo: &Topology, vertices: &[u32]) {
+        for &v in &self.coloured {
+            self.colour[v as usize] = NONE;
+        }
+        self.coloured.clear();
+        let mut overflow = Vec::new();
+        let mut counts = [0usize; MAX_CLASSES];
+        for &v in vertices {
+            let mut used = 0u64;
+            let mut mark = |w: u32| {
+                let c = self.colour[w as usize];
+                if (c as usize) < MAX_CLASSES {
+                    used |= 1 << c;
+                }
+            };
+            for &a in topo.neighbors(v as usize) {
+                mark(a);
+                for &b in topo.neighbors(a as usize) {
+                    mark(b);
+                }
+            }
+            for &f in topo.vertex_faces(v as usize) {
+                for &w in mesh.face(f as usize) {
+                    mark(w);
+                }
+            }
+            let c = (!used).trailing_zeros() as usize;
+            if c < MAX_CLASSES {
+                self.colour[v as usize] = c as u8;
+                counts[c] += 1;
+            } else {
+                self.colour[v as usize] = MAX_CLASSES as u8;
+                overflow.push(v);
+            }
+            self.coloured.push(v);
+        }
+        // Group by class, ascending within a class; overflow vertices form
+        // classes of one.
+        self.starts.clear();
+        self.starts.push(0);
+        let mut acc = 0;
+        for &n in counts.iter().take_while(|&&n| n > 0) {
+            acc += n;
+            self.starts.push(acc);
+        }
+        self.order.clear();
+        self.order.resize(acc, 0);
+        let mut fill: Vec<usize> = self.starts[..self.starts.len() - 1].to_vec();
+        for &v in vertices {
+            let c = self.colour[v as usize] as usize;
+            if c < fill.len() {
+                self.order[fill[c]] = v;
+                fill[c] += 1;
+            }
+        }
+        for v in overflow {
+            self.order.push(v);
+            self.starts.push(self.order.len());
+        }
+    }
+
+    fn classes(&self) -> impl Iterator<Item = &[u32]> + '_ {
+        self.starts.windows(2).map(|w| &self.order[w[0]..w[1]])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quality::fixtures::{
+        at, flattened_staircase, grid, min_split_angle, radially_projected_sphere,
+    };
+    use crate::quality::{fix_twisted_quads, measure_stage};
+    use crate::shapes::CENTER_OFFSET;
+
+    #[test]
+    fn a_sliver_in_a_grid_opens_up() {
+        let m = grid(5);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let mut p = input.clone();
+        // Vertex (2,2) dragged next to (3,2): slivers all around it.
+        p[at(5, 2, 2)] = DVec3::new(2.9, 2.05, 0.0);
+        assert!(min_split_angle(&m, &p, None) < 5.0);
+        let stats = fix_sharp_angles(&m, &t, &mut p, &input, 20.0, 10);
+        assert!(stats.faces_found > 0 && stats.moves > 0);
+        assert_eq!(stats.faces_remaining, 0);
+        assert!(min_split_angle(&m, &p, None) >= 20.0 - 1e-9);
+        assert!(p.iter().all(|q| q.z.abs() < 1e-9), "stays on the plane");
+        let s = measure_stage(&m, &t, &p, &input, None, 0.2);
+        assert_eq!((s.inverted_faces, s.twisted_quads), (0, 0));
+    }
+
+    #[test]
+    fn flattened_risers_spread_tangentially() {
+        let (m, flat, plane) = flattened_staircase(4, 6, 6);
+        let t = Topology::build(&m);
+        let input = m.positions();
+        // Faces with no boundary corner can all be repaired; the slivers on
+        // the rim keep their fixed boundary edge.
+        let inner: Vec<usize> = (0..m.num_faces())
+            .filter(|&f| {
+                m.face(f)
+                    .iter()
+                    .all(|&v| t.kind(v as usize) == VertexKind::Interior)
+            })
+            .collect();
+        let worst_before = min_split_angle(&m, &flat, Some(&inner));
+        assert!(worst_before < 10.0, "risers are slivers: {worst_before}");
+        let all_before = min_split_angle(&m, &flat, None);
+        let mut p = flat.clone();
+        fix_sharp_angles(&m, &t, &mut p, input, 20.0, 20);
+        let worst_after = min_split_angle(&m, &p, Some(&inner));
+        assert!(worst_after > 15.0, "inner faces now {worst_after}");
+        assert!(min_split_angle(&m, &p, None) >= all_before);
+        let s = measure_stage(&m, &t, &p, input, None, 0.2);
+        assert_eq!((s.inverted_faces, s.twisted_quads), (0, 0));
+        for q in &p {
+            assert!(plane.signed_distance(*q).abs() < 1e-9, "left the plane");
+        }
+    }
+
+    #[test]
+    fn a_projected_voxel_sphere_meets_the_quality_targets() {
+        let radius = 8.0;
+        let (m, projected) = radially_projected_sphere(radius);
+        let t = Topology::build(&m);
+        let input = m.positions();
+        let before = measure_stage(&m, &t, &projected, input, None, 0.2);
+        assert!(before.triangle_angles.below_15 > 0 && before.inverted_faces > 0);
+        let mut p = projected.clone();
+        fix_twisted_quads(&m, &t, &mut p, input, 10);
+        let stats = fix_sharp_angles(&m, &t, &mut p, input, 20.0, 10);
+        assert_eq!(stats.faces_remaining, 0, "{stats:?}");
+        let after = measure_stage(&m, &t, &p, input, None, 0.2);
+        assert_eq!(after.triangle_angles.below_15, 0);
+        assert_eq!((after.inverted_faces, after.twisted_quads), (0, 0));
+        // The shape is kept: the vertices stay close to the sphere (they
+        // start on it; a voxel is 1).
+        let d: Vec<f64> = p
+            .iter()
+            .map(|q| (q.distance(CENTER_OFFSET) - radius).abs())
+            .collect();
+        let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
+        let worst = d.iter().fold(0.0f64, |a, &b| a.max(b));
+        assert!(
+            rms < 0.01 && worst < 0.1,
+            "distance to the sphere: rms {rms}, max {worst}"
+        );
+    }
+
+    #[test]
+    fn the_result_does_not_depend_on_the_thread_count() {
+        let (m, projected) = radially_projected_sphere(7.0);
+        let t = Topology::build(&m);
+        let run = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| {
+                    let mut p = projected.clone();
+                    let s = fix_sharp_angles(&m, &t, &mut p, m.positions(), 25.0, 10);
+                    (p, s)
+                })
+        };
+        let (p1, s1) = run(1);
+        let (p3, s3) = run(3);
+        assert_eq!(s1, s3);
+        assert!(p1 == p3, "positions differ between 1 and 3 threads");
+        assert!(s1.moves > 0);
+    }
+
+    #[test]
+    fn colour_classes_are_independent_and_cover_the_list() {
+        let m = grid(8);
+        let t = Topology::build(&m);
+        let list: Vec<u32> = (0..m.num_vertices() as u32)
+            .filter(|&v| t.kind(v as usize) == VertexKind::Interior)
+            .collect();
+        let mut c = Colouring::new(m.num_vertices());
+        c.colour(&m, &t, &list);
+        let mut seen: Vec<u32> = c.classes().flatten().copied().collect();
+        seen.sort_unstable();
+        assert_eq!(seen, list);
+        let mut ring = Vec::new();
+        for class in c.classes() {
+            for &v in class {
+                crate::quality::local::two_ring(&t, v as usize, &mut ring);
+                for &w in class {
+                    assert!(w == v || !ring.contains(&w), "{v} and {w} in one class");
+                }
+            }
+        }
+    }
 }

@@ -25,7 +25,8 @@
 //! Only edges with two interior end points and exactly two faces move.
 
 use super::local::{LocalSurface, MoveTester, ordered_link};
-use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length};
+use super::measures::mean_side_length;
+use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -76,7 +77,7 @@ pub fn fix_short_edges(
     fraction: f64,
     max_sweeps: u32,
 ) -> ShortEdgeStats {
-    let threshold = fraction * mean_edge_length(mesh, positions);
+    let threshold = fraction * mean_side_length(mesh, positions);
     let mut short = short_edges(topo, positions, threshold);
     let mut stats = ShortEdgeStats {
         threshold,
@@ -156,12 +157,14 @@ impl Fixer {
         if na.distance(nb) <= old {
             return false;
         }
-        self.tester.begin(mesh, topo, &[a, b], positions, input);
-        let verdict = self.tester.apply(mesh, &[(a, na), (b, nb)], positions);
+        self.tester
+            .begin(mesh, topo, &[a, b], positions, input, 1.0);
+        let verdict = self.tester.judge(mesh, &[(a, na), (b, nb)], positions);
         if verdict.keeps_quality() {
+            positions[a] = na;
+            positions[b] = nb;
             true
         } else {
-            self.tester.undo(positions);
             false
         }
     }
@@ -236,4 +239,55 @@ fn along(polyline: &[DVec3], fraction: f64) -> DVec3 {
         left -= l;
     }
     polyline[polyline.len() - 1]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quality::fixtures::{at, grid, min_split_angle};
+    use crate::quality::measure_stage;
+
+    #[test]
+    fn a_short_edge_is_lengthened_on_the_surface() {
+        let m = grid(6);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let mut p = input.clone();
+        let (a, b) = (at(6, 2, 3), at(6, 3, 3));
+        // Both ends of edge (2,3)-(3,3) pulled together: length 0.08.
+        p[a] = DVec3::new(2.46, 3.0, 0.0);
+        p[b] = DVec3::new(2.54, 3.0, 0.0);
+        let angle_before = min_split_angle(&m, &p, None);
+        let stats = fix_short_edges(&m, &t, &mut p, &input, 0.2, 10);
+        assert_eq!(stats.found, 1);
+        assert_eq!(stats.lengthened, 1);
+        assert_eq!(stats.remaining, 0);
+        let len = p[a].distance(p[b]);
+        assert!(len > stats.threshold, "edge now {len}");
+        assert!(p.iter().all(|q| q.z.abs() < 1e-9), "stays on the plane");
+        let after = measure_stage(&m, &t, &p, &input, None, 0.2);
+        assert_eq!((after.inverted_faces, after.twisted_quads), (0, 0));
+        assert!(min_split_angle(&m, &p, None) >= angle_before);
+    }
+
+    #[test]
+    fn the_far_point_follows_the_bisector_away_from_the_partner() {
+        let m = grid(4);
+        let t = Topology::build(&m);
+        let mut f = Fixer::default();
+        let (a, b) = (at(4, 2, 2), at(4, 3, 2));
+        let (p1, _) = f.far_point(&m, &t, a, b, m.positions()).unwrap();
+        // The other sides at (2,2) in the two faces on the edge run to (2,1)
+        // and (2,3): the bisector away from (3,2) points to -x and meets the
+        // link at (1,2).
+        assert!(p1.distance(DVec3::new(1.0, 2.0, 0.0)) < 1e-12, "{p1}");
+    }
+
+    #[test]
+    fn polyline_trisection() {
+        let line = [DVec3::ZERO, DVec3::X, DVec3::new(1.0, 1.0, 0.0)];
+        assert!((along(&line, 0.25) - DVec3::new(0.5, 0.0, 0.0)).length() < 1e-15);
+        assert!((along(&line, 0.75) - DVec3::new(1.0, 0.5, 0.0)).length() < 1e-15);
+        assert_eq!(along(&line, 1.0), line[2]);
+    }
 }

@@ -21,7 +21,7 @@
 //! left, or after `max_sweeps`. Only interior vertices move.
 
 use super::local::{MoveTester, Verdict, is_twisted};
-use super::sharp_angle::Relocator;
+use super::sharp_angle::{Relocator, Visit};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -97,14 +97,17 @@ pub fn fix_twisted_quads(
                 }
                 let before: u32 = count_twisted_around(mesh, topo, v, positions);
                 let saved = positions[v];
-                if relocator.relocate(mesh, topo, v, positions, input)
-                    && count_twisted_around(mesh, topo, v, positions) < before
+                if let Visit::Moved(q) =
+                    relocator.relocate(mesh, topo, v, positions, input, 1.0, 1.0, true)
                 {
-                    stats.relocations += 1;
-                    changed = true;
-                    break;
+                    positions[v] = q;
+                    if count_twisted_around(mesh, topo, v, positions) < before {
+                        stats.relocations += 1;
+                        changed = true;
+                        break;
+                    }
+                    positions[v] = saved;
                 }
-                positions[v] = saved;
                 stats.rejected += 1;
             }
         }
@@ -152,14 +155,15 @@ fn swap_with_twisted_neighbour(
         if !shares_twisted {
             continue;
         }
-        tester.begin(mesh, topo, &[a, b], positions, input);
+        tester.begin(mesh, topo, &[a, b], positions, input, 1.0);
         let (pa, pb) = (positions[a], positions[b]);
-        let verdict = tester.apply(mesh, &[(a, pb), (b, pa)], positions);
+        let verdict = tester.judge(mesh, &[(a, pb), (b, pa)], positions);
         if untwists(&verdict) {
+            positions[a] = pb;
+            positions[b] = pa;
             stats.swaps += 1;
             return true;
         }
-        tester.undo(positions);
         stats.rejected += 1;
     }
     false
@@ -170,4 +174,67 @@ pub(crate) fn edge_between(topo: &Topology, a: usize, b: usize) -> Option<usize>
     let nb = topo.neighbors(a);
     let i = nb.binary_search(&(b as u32)).ok()?;
     Some(topo.vertex_edges(a)[i] as usize)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quality::fixtures::{at, grid};
+    use crate::quality::measure_stage;
+
+    #[test]
+    fn a_swapped_pair_is_swapped_back() {
+        let m = grid(4);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let (a, b) = (at(4, 1, 2), at(4, 2, 2));
+        let mut p = input.clone();
+        p.swap(a, b);
+        let before = measure_stage(&m, &t, &p, &input, None, 0.2);
+        assert!(before.twisted_quads >= 2, "the fixture has a twisted pair");
+        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10);
+        assert_eq!(stats.found, before.twisted_quads);
+        assert!(stats.swaps >= 1);
+        assert_eq!(stats.remaining, 0);
+        let after = measure_stage(&m, &t, &p, &input, None, 0.2);
+        assert_eq!((after.twisted_quads, after.inverted_faces), (0, 0));
+        assert_eq!(p, input, "the swap restores the grid exactly");
+    }
+
+    #[test]
+    fn a_lone_twisted_quad_is_untwisted_by_relocation() {
+        let m = grid(4);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let mut p = input.clone();
+        // Vertex (2,2), corner v3 of the quad below-left, pulled across that
+        // quad's split diagonal v1-v3: the quad folds over it.
+        let v = at(4, 2, 2);
+        p[v] = DVec3::new(0.8, 1.5, 0.1);
+        let before = measure_stage(&m, &t, &p, &input, None, 0.2);
+        assert!(before.twisted_quads >= 1);
+        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10);
+        assert_eq!(stats.remaining, 0, "{stats:?}");
+        let after = measure_stage(&m, &t, &p, &input, None, 0.2);
+        assert_eq!(after.twisted_quads, 0);
+        assert!(after.inverted_faces <= before.inverted_faces);
+        assert!(p.iter().all(|q| q.z.abs() <= 0.2), "stays near the plane");
+    }
+
+    #[test]
+    fn boundary_vertices_never_move() {
+        let m = grid(2);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let mut p = input.clone();
+        p.swap(at(2, 0, 0), at(2, 1, 0)); // both on the boundary
+        let moved = p.clone();
+        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10);
+        assert!(stats.found >= 1);
+        for v in 0..p.len() {
+            if t.kind(v) != VertexKind::Interior {
+                assert_eq!(p[v], moved[v], "boundary vertex {v} moved");
+            }
+        }
+    }
 }
