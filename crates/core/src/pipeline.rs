@@ -186,7 +186,7 @@ pub fn wang_yu(
     let t = Instant::now();
     let mut positions = mesh.positions().to_vec();
     let passes = params.initial_passes;
-    let (initial_fits, hk) = smooth_passes(
+    let (initial_fits, _) = smooth_passes(
         mesh,
         topo,
         &mut positions,
@@ -201,7 +201,6 @@ pub fn wang_yu(
 
     let t = Instant::now();
     check(cancel)?;
-    let _ = hk;
     let curvature_hoods = Neighbourhoods::build(topo, |v, w, out| {
         w.start(topo, v);
         for r in 0..params.curvature_ring {

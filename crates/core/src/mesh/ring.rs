@@ -129,26 +129,13 @@ impl RingWalker {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::Mesh;
+    use crate::mesh::topology::tests::grid;
     use glam::DVec3;
 
     #[test]
     fn quad_grid_rings_have_4_then_12_vertices() {
         let n = 6u32;
-        let mut p = Vec::new();
-        for j in 0..=n {
-            for i in 0..=n {
-                p.push(DVec3::new(i as f64, j as f64, 0.0));
-            }
-        }
-        let mut f = Vec::new();
-        for j in 0..n {
-            for i in 0..n {
-                let a = j * (n + 1) + i;
-                f.push([a, a + 1, a + n + 2, a + n + 1]);
-            }
-        }
-        let m = Mesh::from_polygons(p, &f).unwrap();
+        let m = grid(n);
         let t = Topology::build(&m);
         let centre = (3 * (n + 1) + 3) as usize;
         let mut w = RingWalker::new(m.num_vertices());
@@ -161,20 +148,7 @@ mod tests {
     #[test]
     fn beam_walk_samples_each_ring() {
         let n = 20u32;
-        let mut p = Vec::new();
-        for j in 0..=n {
-            for i in 0..=n {
-                p.push(DVec3::new(i as f64, j as f64, 0.0));
-            }
-        }
-        let mut f = Vec::new();
-        for j in 0..n {
-            for i in 0..n {
-                let a = j * (n + 1) + i;
-                f.push([a, a + 1, a + n + 2, a + n + 1]);
-            }
-        }
-        let m = Mesh::from_polygons(p, &f).unwrap();
+        let m = grid(n);
         let t = Topology::build(&m);
         let c = (10 * (n + 1) + 10) as usize;
         let mut w = RingWalker::new(m.num_vertices());

@@ -341,11 +341,11 @@ fn prefix_sum(a: &mut [u32]) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use glam::DVec3;
 
-    /// A 3x3 grid of quads (16 vertices), an open surface.
+    /// An `n` x `n` grid of unit quads in the plane z = 0, an open surface.
     pub(crate) fn grid(n: u32) -> Mesh {
         let mut p = Vec::new();
         for j in 0..=n {
