@@ -4,10 +4,10 @@
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length};
 use crate::params::{BoundaryRule, Method, ParamError, Params};
 use crate::quality::{improve, measure_stage, mesh_statistics};
-use crate::report::QualityReport;
 use crate::report::{
     LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
 };
+use crate::report::{QualityReport, StageMeasures};
 use crate::smoothing::adaptive::{
     AdaptiveNeighbourhoods, BEAM_WIDTH, GrowthRule, adaptive_neighbourhoods,
 };
@@ -26,7 +26,7 @@ use std::time::Instant;
 use thiserror::Error;
 
 /// Pipeline stages, in order, as reported to [`Progress`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Stage {
     /// Topology and measures of the input.
@@ -148,8 +148,8 @@ pub fn movable_mask(topo: &Topology, boundary: BoundaryRule) -> Vec<bool> {
 /// Intermediate results of the Wang-Yu stages.
 #[derive(Debug, Clone)]
 pub struct WangYuRun {
-    /// Positions after initial smoothing.
-    pub initial: Vec<DVec3>,
+    /// Measures after initial smoothing.
+    pub initial: StageMeasures,
     /// Positions after adaptive smoothing (and volume restoration).
     pub adaptive: Vec<DVec3>,
     /// `(H, K)` per vertex from the last fits.
@@ -171,11 +171,11 @@ pub struct WangYuRun {
 /// Initial smoothing, labelling and adaptive smoothing with volume
 /// restoration (paper sections 2.2-2.3), without the quality fixes.
 /// `two_ring` is [`Neighbourhoods::two_ring`] of `topo` with
-/// `params.max_fit_points`.
+/// `params.max_fit_points`; it is dropped once initial smoothing is done.
 pub fn wang_yu(
     mesh: &Mesh,
     topo: &Topology,
-    two_ring: &Neighbourhoods,
+    two_ring: Neighbourhoods,
     movable: &[bool],
     params: &Params,
     progress: &dyn Progress,
@@ -190,14 +190,24 @@ pub fn wang_yu(
         mesh,
         topo,
         &mut positions,
-        two_ring,
+        &two_ring,
         movable,
         passes,
         cancel,
         |p| progress.update(Stage::Initial, p as f64 / passes.max(1) as f64),
     )?;
-    let initial = positions.clone();
+    drop(two_ring);
     timings_ms.push((Stage::Initial, ms(t)));
+    let t = Instant::now();
+    let initial = measure_stage(
+        mesh,
+        topo,
+        &positions,
+        mesh.positions(),
+        None,
+        params.quality.short_edge_fraction,
+    );
+    timings_ms.push((Stage::Report, ms(t)));
 
     let t = Instant::now();
     check(cancel)?;
@@ -312,6 +322,7 @@ pub fn run(
         Some(&input_curvature),
         fraction,
     ));
+    drop(input_curvature);
     timings.push((Stage::Analyse, ms(t)));
     progress.update(Stage::Analyse, 1.0);
     check(cancel)?;
@@ -320,12 +331,10 @@ pub fn run(
         Method::WangYu => {
             let r = {
                 let _s = tracing::info_span!("wang_yu").entered();
-                wang_yu(mesh, &topo, &two_ring, &movable, params, progress, cancel)?
+                wang_yu(mesh, &topo, two_ring, &movable, params, progress, cancel)?
             };
             let t = Instant::now();
-            report.stages.initial = Some(measure_stage(
-                mesh, &topo, &r.initial, input, None, fraction,
-            ));
+            report.stages.initial = Some(r.initial);
             report.stages.adaptive = Some(measure_stage(
                 mesh,
                 &topo,
@@ -347,6 +356,7 @@ pub fn run(
             (r.adaptive, r.curvature, labels)
         }
         Method::Laplacian | Method::Taubin => {
+            drop(two_ring);
             let t = Instant::now();
             let positions = {
                 let _s = tracing::info_span!("baseline").entered();
@@ -389,9 +399,19 @@ pub fn run(
         .zip(input)
         .map(|(a, b)| a.distance(*b))
         .collect();
-    report.timings = timings
-        .iter()
-        .map(|&(stage, ms)| StageTiming {
+    // One entry per stage, in pipeline order (measuring happens in several
+    // places).
+    let mut per_stage: Vec<(Stage, f64)> = Vec::new();
+    for (stage, ms) in timings {
+        match per_stage.iter_mut().find(|t| t.0 == stage) {
+            Some(t) => t.1 += ms,
+            None => per_stage.push((stage, ms)),
+        }
+    }
+    per_stage.sort_by_key(|t| t.0);
+    report.timings = per_stage
+        .into_iter()
+        .map(|(stage, ms)| StageTiming {
             stage: stage.name().to_string(),
             ms,
         })

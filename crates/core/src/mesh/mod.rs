@@ -6,6 +6,8 @@
 
 mod ring;
 mod topology;
+#[cfg(test)]
+pub(crate) use topology::tests::grid as test_grid;
 
 pub use ring::RingWalker;
 pub use topology::{Topology, VertexKind};

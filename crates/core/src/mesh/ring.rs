@@ -56,35 +56,34 @@ impl RingWalker {
     pub fn grow_beam(&mut self, topo: &Topology, beam: usize) -> &[u32] {
         let g = self.generation;
         let start = self.found.len();
-        let (frontier_a, frontier_b) = if self.ring_starts.len() == 1 {
-            (usize::MAX, usize::MAX)
+        let mut len = start;
+        let ring_count = self.ring_starts.len();
+        let (frontier, take) = if ring_count == 1 {
+            (0..0, 1)
         } else {
-            (
-                self.ring_starts[self.ring_starts.len() - 2],
-                self.ring_starts[self.ring_starts.len() - 1],
-            )
+            let range = self.ring_starts[ring_count - 2]..self.ring_starts[ring_count - 1];
+            let take = range.len().min(beam.max(1));
+            (range, take)
         };
-        if frontier_a == usize::MAX {
-            for &w in topo.neighbors(self.centre as usize) {
-                if self.stamp[w as usize] != g {
-                    self.stamp[w as usize] = g;
-                    self.found.push(w);
-                }
-            }
-        } else {
-            let len = frontier_b - frontier_a;
-            let take = len.min(beam.max(1));
-            for q in 0..take {
-                let idx = frontier_a + q * len / take;
-                let u = self.found[idx] as usize;
-                for &w in topo.neighbors(u) {
-                    if self.stamp[w as usize] != g {
-                        self.stamp[w as usize] = g;
-                        self.found.push(w);
-                    }
-                }
+        for q in 0..take {
+            let u = if ring_count == 1 {
+                self.centre as usize
+            } else {
+                self.found[frontier.start + q * frontier.len() / take] as usize
+            };
+            // Branch-free marking: whether a neighbour is new is close to a
+            // coin toss, so a branch on it would mispredict half the time.
+            let nb = topo.neighbors(u);
+            self.found.resize(len + nb.len(), 0);
+            for &w in nb {
+                let stamp = &mut self.stamp[w as usize];
+                let fresh = *stamp != g;
+                *stamp = g;
+                self.found[len] = w;
+                len += usize::from(fresh);
             }
         }
+        self.found.truncate(len);
         self.ring_starts.push(self.found.len());
         &self.found[start..]
     }

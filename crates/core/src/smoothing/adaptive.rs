@@ -18,6 +18,7 @@ use super::label::{Label, agrees};
 use super::neighbourhood::{Neighbourhoods, push_thinned};
 use crate::mesh::{RingWalker, Topology};
 use glam::DVec3;
+use rayon::prelude::*;
 use std::sync::atomic::{AtomicU8, Ordering};
 
 /// Beyond ring 2, rings are walked by [`RingWalker::grow_beam`] expanding
@@ -96,10 +97,27 @@ pub fn adaptive_neighbourhoods(
     normals: &[DVec3],
     rule: GrowthRule,
 ) -> AdaptiveNeighbourhoods {
+    let (l, th, tk, margin) = (
+        rule.edge_length,
+        rule.tolerance_h,
+        rule.tolerance_k,
+        rule.label_margin,
+    );
+    // Bit `b` of `agreement[j]`: vertex `j` agrees with label `b`. One byte
+    // per candidate instead of its curvature and four comparisons.
+    let agreement: Vec<u8> = curvature
+        .par_iter()
+        .map(|&(h, k)| {
+            Label::ALL
+                .iter()
+                .filter(|&&of| agrees(of, h, k, l, th, tk, margin))
+                .fold(0u8, |mask, &of| mask | 1 << of as u8)
+        })
+        .collect();
     let ring: Vec<AtomicU8> = (0..topo.num_vertices()).map(|_| AtomicU8::new(0)).collect();
     let hoods = Neighbourhoods::build(topo, |v, w, out| {
         let k = grow(
-            topo, v, w, positions, normals, labels, curvature, h_scaled, rule,
+            topo, v, w, positions, normals, labels, &agreement, h_scaled, rule,
         );
         ring[v].store(k as u8, Ordering::Relaxed);
         push_thinned(w, rule.max_points, out);
@@ -119,7 +137,7 @@ fn grow(
     positions: &[DVec3],
     normals: &[DVec3],
     labels: &[Label],
-    curvature: &[(f64, f64)],
+    agreement: &[u8],
     h_scaled: &[f64],
     rule: GrowthRule,
 ) -> usize {
@@ -140,14 +158,11 @@ fn grow(
             w.discard_last();
             break;
         }
-        let (l, th, tk) = (rule.edge_length, rule.tolerance_h, rule.tolerance_k);
-        let disagreeing = candidates
+        let own = 1u8 << labels[v] as u8;
+        let disagreeing: usize = candidates
             .iter()
-            .filter(|&&j| {
-                let (h, k) = curvature[j as usize];
-                !agrees(labels[v], h, k, l, th, tk, rule.label_margin)
-            })
-            .count();
+            .map(|&j| usize::from(agreement[j as usize] & own == 0))
+            .sum();
         if disagreeing as f64 > rule.label_disagreement * candidates.len() as f64 {
             w.discard_last();
             break;
@@ -171,7 +186,7 @@ fn grow(
         let rho2 = radius2 / candidates.len() as f64;
         let kappa = 2.0 * bend;
         let bias = rho2 * rho2 * kappa.powi(3) / 48.0;
-        if bias > rule.bias_bound * l {
+        if bias > rule.bias_bound * rule.edge_length {
             w.discard_last();
             break;
         }

@@ -6,11 +6,16 @@ use crate::mesh::{RingWalker, Topology};
 use rayon::prelude::*;
 use std::cell::RefCell;
 
-/// Per-vertex neighbour lists in CSR form.
+/// Per-vertex neighbour lists in CSR form, stored in the chunks they were
+/// built in (one copy, no concatenation: the lists are the largest arrays of
+/// a run).
 #[derive(Debug, Clone, Default)]
 pub struct Neighbourhoods {
+    /// `offsets[v]..offsets[v + 1]`: vertex `v`'s entries, counted from the
+    /// start of its chunk.
     offsets: Vec<u32>,
-    indices: Vec<u32>,
+    /// Entries of vertices `c * CHUNK..(c + 1) * CHUNK`.
+    chunks: Vec<Vec<u32>>,
 }
 
 thread_local! {
@@ -24,7 +29,15 @@ impl Neighbourhoods {
     /// Neighbours of vertex `v`.
     #[inline]
     pub fn get(&self, v: usize) -> &[u32] {
-        &self.indices[self.offsets[v] as usize..self.offsets[v + 1] as usize]
+        let (start, end) = (self.offsets[v] as usize, self.offsets[v + 1] as usize);
+        let chunk = &self.chunks[v / CHUNK];
+        // The last vertex of a chunk ends at the chunk's end.
+        let end = if (v + 1).is_multiple_of(CHUNK) {
+            chunk.len()
+        } else {
+            end
+        };
+        &chunk[start..end]
     }
 
     /// Number of vertices covered.
@@ -39,7 +52,7 @@ impl Neighbourhoods {
 
     /// Total number of stored neighbour entries.
     pub fn total(&self) -> usize {
-        self.indices.len()
+        self.chunks.iter().map(Vec::len).sum()
     }
 
     /// Builds the lists with `select(v, walker, out)`, which appends vertex
@@ -50,35 +63,31 @@ impl Neighbourhoods {
         F: Fn(usize, &mut RingWalker, &mut Vec<u32>) + Sync,
     {
         let n = topo.num_vertices();
-        let chunks: Vec<(Vec<u32>, Vec<u32>)> = (0..n.div_ceil(CHUNK))
+        let built: Vec<(Vec<u32>, Vec<u32>)> = (0..n.div_ceil(CHUNK))
             .into_par_iter()
             .map(|c| {
                 let range = c * CHUNK..((c + 1) * CHUNK).min(n);
-                let mut lens = Vec::with_capacity(range.len());
+                let mut starts = Vec::with_capacity(range.len());
                 let mut out = Vec::with_capacity(range.len() * 16);
                 WALKER.with(|w| {
                     let mut w = w.borrow_mut();
                     for v in range {
-                        let before = out.len();
+                        starts.push(out.len() as u32);
                         select(v, &mut w, &mut out);
-                        lens.push((out.len() - before) as u32);
                     }
                 });
-                (lens, out)
+                out.shrink_to_fit();
+                (starts, out)
             })
             .collect();
-        let total: usize = chunks.iter().map(|c| c.1.len()).sum();
         let mut offsets = Vec::with_capacity(n + 1);
-        let mut indices = Vec::with_capacity(total);
-        offsets.push(0u32);
-        for (lens, out) in chunks {
-            for l in lens {
-                let last = *offsets.last().unwrap_or(&0);
-                offsets.push(last + l);
-            }
-            indices.extend_from_slice(&out);
+        let mut chunks = Vec::with_capacity(built.len());
+        for (starts, out) in built {
+            offsets.extend_from_slice(&starts);
+            chunks.push(out);
         }
-        Neighbourhoods { offsets, indices }
+        offsets.push(chunks.last().map_or(0, |c| c.len() as u32));
+        Neighbourhoods { offsets, chunks }
     }
 
     /// The 2-ring of every vertex, thinned to at most `max_points` (ring 1
@@ -129,5 +138,27 @@ pub fn push_thinned(w: &RingWalker, max_points: usize, out: &mut Vec<u32>) {
             let idx = ((q as f64 + 0.5) * step) as usize;
             out.push(ring[idx.min(ring.len() - 1)]);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::test_grid as grid;
+
+    #[test]
+    fn lists_match_the_walk_across_chunk_boundaries() {
+        let m = grid(50);
+        let t = Topology::build(&m);
+        assert!(t.num_vertices() > 2 * CHUNK);
+        let hoods = Neighbourhoods::two_ring(&t, 512);
+        assert_eq!(hoods.len(), t.num_vertices());
+        let mut w = RingWalker::default();
+        let mut total = 0;
+        for v in 0..t.num_vertices() {
+            assert_eq!(hoods.get(v), w.k_ring(&t, v, 2), "vertex {v}");
+            total += hoods.get(v).len();
+        }
+        assert_eq!(hoods.total(), total);
     }
 }
