@@ -309,3 +309,304 @@ fn report_prints_the_measures_of_a_mesh() {
     );
     assert!(table.contains("closed"), "{table}");
 }
+
+/// The marching-cubes triangle mesh of a ball of radius 4, and its
+/// triangles' corners as a soup: three fresh vertices per triangle.
+fn triangle_soup() -> (Mesh, Vec<[[f64; 3]; 3]>) {
+    let (_, mesh) = shapes::mc_sphere(4.0);
+    let p = mesh.positions();
+    let tris = mesh
+        .faces()
+        .map(|f| {
+            assert_eq!(f.len(), 3, "marching cubes makes triangles");
+            [0, 1, 2].map(|c| p[f[c] as usize].to_array())
+        })
+        .collect();
+    (mesh, tris)
+}
+
+/// The soup as OBJ: one `v` line per corner, faces `f 1 2 3`, `f 4 5 6`, ...
+fn soup_obj(tris: &[[[f64; 3]; 3]]) -> String {
+    let mut text = String::new();
+    for t in tris {
+        for [x, y, z] in t {
+            text.push_str(&format!("v {x} {y} {z}\n"));
+        }
+    }
+    for i in 0..tris.len() {
+        text.push_str(&format!("f {} {} {}\n", 3 * i + 1, 3 * i + 2, 3 * i + 3));
+    }
+    text
+}
+
+/// The soup as ASCII PLY.
+fn soup_ply(tris: &[[[f64; 3]; 3]]) -> String {
+    let mut text = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty double x\nproperty double y\n\
+         property double z\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        3 * tris.len(),
+        tris.len()
+    );
+    for t in tris {
+        for [x, y, z] in t {
+            text.push_str(&format!("{x} {y} {z}\n"));
+        }
+    }
+    for i in 0..tris.len() {
+        text.push_str(&format!("3 {} {} {}\n", 3 * i, 3 * i + 1, 3 * i + 2));
+    }
+    text
+}
+
+/// The JSON chunk of a GLB.
+fn glb_json(bytes: &[u8]) -> Value {
+    assert_eq!(&bytes[..4], b"glTF");
+    let len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    serde_json::from_slice(&bytes[20..20 + len]).unwrap()
+}
+
+fn read_report(path: &Path) -> Value {
+    serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
+}
+
+fn vertex_count(bytes: &[u8], format: Format, weld: bool) -> usize {
+    let options = io::ReadOptions {
+        weld: Some(weld),
+        ..io::ReadOptions::default()
+    };
+    io::read_with(bytes, format, &options)
+        .expect("the output reads back")
+        .mesh
+        .num_vertices()
+}
+
+#[test]
+fn stl_soups_are_welded_and_keep_their_vertices() {
+    let dir = scratch("stl_soups_are_welded");
+    let (mesh, tris) = triangle_soup();
+    let file_vertices = 3 * tris.len();
+    let mut stl = Vec::new();
+    io::stl::write_stl_plain(&mesh, mesh.positions(), false, &mut stl).unwrap();
+    let input = dir.join("in.stl");
+    std::fs::write(&input, &stl).unwrap();
+
+    // STL is welded by default: the smoother sees the closed ball.
+    let (output, report) = (dir.join("out.stl"), dir.join("report.json"));
+    let out = meshsmooth(&[
+        "smooth",
+        path_str(&input),
+        "-o",
+        path_str(&output),
+        "--report",
+        path_str(&report),
+        "-q",
+    ]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let report = read_report(&report);
+    assert_eq!(report["schema_version"], "1.1");
+    assert_eq!(report["mesh"]["vertices"], mesh.num_vertices());
+    assert_eq!(report["mesh"]["file_vertices"], file_vertices);
+    assert_eq!(report["mesh"]["closed"], true);
+    assert_eq!(report["reproducibility"]["params"]["weld"], Value::Null);
+    let out_bytes = std::fs::read(&output).unwrap();
+    assert_ne!(out_bytes, stl, "smoothing moved no vertex");
+    // The file keeps its three vertices per triangle, and every copy of a
+    // vertex moved alike: welding the output again gives the ball back.
+    assert_eq!(vertex_count(&out_bytes, Format::Stl, false), file_vertices);
+    assert_eq!(
+        vertex_count(&out_bytes, Format::Stl, true),
+        mesh.num_vertices()
+    );
+
+    // `--no-weld` smooths the soup as it is: nothing to join, nothing counted.
+    let (output, report) = (dir.join("soup.stl"), dir.join("soup.json"));
+    let out = meshsmooth(&[
+        "smooth",
+        path_str(&input),
+        "-o",
+        path_str(&output),
+        "--report",
+        path_str(&report),
+        "--no-weld",
+        "-q",
+    ]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let report = read_report(&report);
+    assert_eq!(report["mesh"]["vertices"], file_vertices);
+    assert_eq!(report["mesh"]["file_vertices"], Value::Null);
+    assert_eq!(report["mesh"]["closed"], false);
+    assert_eq!(report["reproducibility"]["params"]["weld"], false);
+}
+
+#[test]
+fn weld_flag_joins_an_obj_soup() {
+    let dir = scratch("weld_flag_joins_an_obj_soup");
+    let (mesh, tris) = triangle_soup();
+    let file_vertices = 3 * tris.len();
+    let text = soup_obj(&tris);
+    let input = dir.join("in.obj");
+    std::fs::write(&input, &text).unwrap();
+
+    // OBJ is not welded by default; `report` takes the weld flags too.
+    let out = meshsmooth(&["report", path_str(&input), "--json"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let json: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["mesh"]["vertices"], file_vertices);
+    assert_eq!(json["mesh"]["file_vertices"], Value::Null);
+    let out = meshsmooth(&["report", path_str(&input), "--json", "--weld"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let json: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["mesh"]["vertices"], mesh.num_vertices());
+    assert_eq!(json["mesh"]["file_vertices"], file_vertices);
+    assert_eq!(json["mesh"]["closed"], true);
+
+    let (output, report) = (dir.join("out.obj"), dir.join("report.json"));
+    let out = meshsmooth(&[
+        "smooth",
+        path_str(&input),
+        "-o",
+        path_str(&output),
+        "--report",
+        path_str(&report),
+        "--no-weld",
+        "--weld",
+        "-q",
+    ]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let report = read_report(&report);
+    assert_eq!(report["mesh"]["vertices"], mesh.num_vertices());
+    assert_eq!(report["mesh"]["file_vertices"], file_vertices);
+    assert_eq!(report["reproducibility"]["params"]["weld"], true);
+    let smoothed = String::from_utf8(std::fs::read(&output).unwrap()).unwrap();
+    let v_lines = smoothed.lines().filter(|l| l.starts_with("v ")).count();
+    assert_eq!(v_lines, file_vertices, "the file keeps its vertices");
+    let f_lines = |t: &str| -> Vec<String> {
+        t.lines()
+            .filter(|l| l.starts_with("f "))
+            .map(str::to_owned)
+            .collect()
+    };
+    assert_eq!(f_lines(&smoothed), f_lines(&text));
+    assert_eq!(
+        vertex_count(smoothed.as_bytes(), Format::Obj, true),
+        mesh.num_vertices(),
+        "the seams stay closed"
+    );
+
+    // A tolerance out of range is a usage error.
+    let out = meshsmooth(&[
+        "smooth",
+        path_str(&input),
+        "-o",
+        path_str(&output),
+        "--weld-tolerance",
+        "0.5",
+    ]);
+    assert_eq!(code(&out), 2, "{}", stderr(&out));
+    assert!(stderr(&out).contains("weld_tolerance"), "{}", stderr(&out));
+}
+
+#[test]
+fn vertex_results_go_into_ply_and_glb_outputs() {
+    let dir = scratch("vertex_results_go_into_ply_and_glb");
+    let (mesh, tris) = triangle_soup();
+    let file_vertices = 3 * tris.len();
+    let input = dir.join("in.ply");
+    std::fs::write(&input, soup_ply(&tris)).unwrap();
+
+    // PLY in, PLY out, welded: the results are written per file vertex,
+    // every copy of a welded vertex with the same values.
+    let output = dir.join("out.ply");
+    let out = meshsmooth(&[
+        "smooth",
+        path_str(&input),
+        "-o",
+        path_str(&output),
+        "--weld",
+        "--vertex-results",
+        "-q",
+    ]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let text = String::from_utf8(std::fs::read(&output).unwrap()).unwrap();
+    let (header, body) = text.split_once("end_header\n").unwrap();
+    let properties: Vec<&str> = header
+        .lines()
+        .skip_while(|l| !l.starts_with("element vertex"))
+        .skip(1)
+        .take_while(|l| l.starts_with("property"))
+        .map(|l| l.rsplit(' ').next().unwrap())
+        .collect();
+    for name in [
+        "label",
+        "mean_curvature",
+        "gaussian_curvature",
+        "displacement",
+    ] {
+        assert!(properties.contains(&name), "{name} in {header}");
+    }
+    assert!(header.contains("property float mean_curvature"), "{header}");
+    let column = |name: &str| properties.iter().position(|p| *p == name).unwrap();
+    let (x, h) = (column("x"), column("mean_curvature"));
+    let rows: Vec<Vec<f64>> = body
+        .lines()
+        .take(file_vertices)
+        .map(|l| l.split_whitespace().map(|f| f.parse().unwrap()).collect())
+        .collect();
+    assert_eq!(rows.len(), file_vertices);
+    let mut seen: std::collections::HashMap<[u64; 3], (Vec<f64>, f64)> = Default::default();
+    for (corner, row) in tris.iter().flatten().zip(&rows) {
+        let key = corner.map(f64::to_bits);
+        let value = (row[x..x + 3].to_vec(), row[h]);
+        let first = seen.entry(key).or_insert_with(|| value.clone());
+        assert_eq!(*first, value, "copies of a vertex disagree");
+    }
+    assert_eq!(seen.len(), mesh.num_vertices());
+    assert!(rows.iter().any(|r| r[h] != 0.0), "no curvature written");
+
+    // GLB out: the results are float attributes of the primitive.
+    let output = dir.join("out.glb");
+    let out = meshsmooth(&[
+        "smooth",
+        path_str(&input),
+        "-o",
+        path_str(&output),
+        "--weld",
+        "--vertex-results",
+        "-q",
+    ]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let bytes = std::fs::read(&output).unwrap();
+    let json = glb_json(&bytes);
+    let attributes = &json["meshes"][0]["primitives"][0]["attributes"];
+    for name in [
+        "_LABEL",
+        "_MEAN_CURVATURE",
+        "_GAUSSIAN_CURVATURE",
+        "_DISPLACEMENT",
+    ] {
+        assert!(attributes[name].is_u64(), "{name} in {attributes}");
+    }
+    assert_eq!(
+        vertex_count(&bytes, Format::Glb, false),
+        mesh.num_vertices()
+    );
+
+    // Without the flag, no attributes; OBJ cannot hold them (a note says so).
+    let out = meshsmooth(&["smooth", path_str(&input), "-o", path_str(&output), "-q"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let json = glb_json(&std::fs::read(&output).unwrap());
+    assert!(json["meshes"][0]["primitives"][0]["attributes"]["_LABEL"].is_null());
+    let out = meshsmooth(&[
+        "smooth",
+        path_str(&input),
+        "-o",
+        path_str(&dir.join("out.obj")),
+        "--vertex-results",
+    ]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("cannot hold per-vertex results"),
+        "{}",
+        stderr(&out)
+    );
+}

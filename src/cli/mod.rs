@@ -10,7 +10,7 @@ mod progress;
 mod summary;
 
 use anyhow::{Context, anyhow};
-use meshsmooth_core::io::{self, Document, Format, ReadLimits};
+use meshsmooth_core::io::{self, Document, Format, ReadLimits, ReadOptions, WriteOptions};
 use meshsmooth_core::quality::{measure_stage, mesh_statistics};
 use meshsmooth_core::report::{MeshStatistics, SCHEMA_VERSION, StageMeasures, sha256_hex};
 use meshsmooth_core::{Params, SmoothOutput, Topology};
@@ -21,6 +21,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 pub use params::ParamFlags;
+use params::WeldFlags;
 
 /// Arguments of `meshsmooth smooth`.
 #[derive(Debug, clap::Args)]
@@ -67,6 +68,8 @@ pub struct ReportArgs {
     /// its content).
     #[arg(long, value_name = "FORMAT")]
     input_format: Option<Format>,
+    #[command(flatten)]
+    weld: WeldFlags,
 }
 
 /// A failure with the exit code it maps to.
@@ -122,8 +125,13 @@ fn display(path: &Path) -> String {
     }
 }
 
-/// Reads and parses the input; every failure is an input error (exit 3).
-fn read_input(path: &Path, format: Option<Format>) -> Result<(Vec<u8>, Document), Failure> {
+/// Reads and parses the input with `options` (limits, welding); every
+/// failure is an input error (exit 3).
+fn read_input(
+    path: &Path,
+    format: Option<Format>,
+    options: &ReadOptions,
+) -> Result<(Vec<u8>, Document), Failure> {
     let name = display(path);
     let bytes = if is_stdio(path) {
         let mut bytes = Vec::new();
@@ -146,7 +154,7 @@ fn read_input(path: &Path, format: Option<Format>) -> Result<(Vec<u8>, Document)
                 "cannot tell the format of {name}; name it with --input-format"
             ))
         })?;
-    let doc = io::read(&bytes, format, &ReadLimits::default())
+    let doc = io::read_with(&bytes, format, options)
         .with_context(|| format!("cannot read {name}"))
         .map_err(Failure::input)?;
     Ok((bytes, doc))
@@ -191,7 +199,8 @@ fn run_smooth(args: SmoothArgs) -> Result<(), Failure> {
         )));
     }
     let params = load_params(&args)?;
-    let (input_bytes, doc) = read_input(&args.input, args.input_format)?;
+    let read_options = params.read_options(ReadLimits::default());
+    let (input_bytes, doc) = read_input(&args.input, args.input_format, &read_options)?;
     let out_format = args
         .format
         .or_else(|| {
@@ -212,17 +221,28 @@ fn run_smooth(args: SmoothArgs) -> Result<(), Failure> {
     let SmoothOutput {
         positions,
         mut report,
-        ..
+        per_vertex,
     } = result
         .with_context(|| format!("smoothing {} failed", display(&args.input)))
         .map_err(Failure::smoothing)?;
     let elapsed = started.elapsed();
 
-    let out_bytes = io::write(&doc, &positions, out_format)
+    let write_options = WriteOptions {
+        results: params.vertex_results.then(|| (&per_vertex).into()),
+        ..WriteOptions::default()
+    };
+    let out_bytes = io::write_with(&doc, &positions, out_format, &write_options)
         .context("cannot encode the smoothed mesh")
         .map_err(Failure::other)?;
     write_output(&args.output, &out_bytes).map_err(Failure::other)?;
+    if params.vertex_results && !args.quiet && matches!(out_format, Format::Obj | Format::Stl) {
+        eprintln!(
+            "meshsmooth: note: {out_format} cannot hold per-vertex results; --vertex-results \
+             has no effect (write glTF or PLY)"
+        );
+    }
 
+    report.mesh.file_vertices = file_vertices(&doc);
     report.reproducibility.input_sha256 = Some(sha256_hex(&input_bytes));
     report.reproducibility.output_sha256 = Some(sha256_hex(&out_bytes));
     if let Some(path) = &args.report {
@@ -270,15 +290,31 @@ struct MeshReport {
     input_sha256: String,
 }
 
+/// Vertices of the file before welding, for the report; `None` when the
+/// file was not welded.
+fn file_vertices(doc: &Document) -> Option<u64> {
+    doc.vertex_map.as_ref().map(|map| map.len() as u64)
+}
+
 fn run_report(args: ReportArgs) -> Result<(), Failure> {
-    let (bytes, doc) = read_input(&args.input, args.input_format)?;
+    let mut params = Params::default();
+    args.weld.apply(&mut params);
+    params
+        .validate()
+        .context("invalid parameters")
+        .map_err(Failure::usage)?;
+    let read_options = params.read_options(ReadLimits::default());
+    let (bytes, doc) = read_input(&args.input, args.input_format, &read_options)?;
     let mesh = &doc.mesh;
     let topo = Topology::build(mesh);
     let positions = mesh.positions();
-    let short_edge_fraction = Params::default().quality.short_edge_fraction;
+    let short_edge_fraction = params.quality.short_edge_fraction;
     let report = MeshReport {
         schema_version: SCHEMA_VERSION,
-        mesh: mesh_statistics(mesh, &topo),
+        mesh: MeshStatistics {
+            file_vertices: file_vertices(&doc),
+            ..mesh_statistics(mesh, &topo)
+        },
         measures: measure_stage(mesh, &topo, positions, positions, None, short_edge_fraction),
         input_sha256: sha256_hex(&bytes),
     };

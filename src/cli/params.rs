@@ -57,6 +57,44 @@ pub struct ParamFlags {
     /// Taubin's negative step [params: baseline.mu].
     #[arg(long, value_name = "MU", allow_negative_numbers = true)]
     mu: Option<f64>,
+    #[command(flatten)]
+    weld: WeldFlags,
+    /// Add per-vertex results (label, curvatures, displacement) to a glTF
+    /// or PLY output; OBJ and STL cannot hold them
+    /// [params: vertex_results = true].
+    #[arg(long)]
+    vertex_results: bool,
+}
+
+/// Welding flags, shared by `smooth` and `report`; the last of `--weld`
+/// and `--no-weld` wins.
+#[derive(Debug, Default, clap::Args)]
+pub struct WeldFlags {
+    /// Join vertices that share a position before smoothing (default: on
+    /// for glTF and STL, off for OBJ and PLY) [params: weld = true].
+    #[arg(long, overrides_with = "no_weld")]
+    weld: bool,
+    /// Do not join vertices that share a position [params: weld = false].
+    #[arg(long, overrides_with = "weld")]
+    no_weld: bool,
+    /// Join vertices closer than this fraction of the bounding-box diagonal
+    /// when welding [params: weld_tolerance].
+    #[arg(long, value_name = "T")]
+    weld_tolerance: Option<f64>,
+}
+
+impl WeldFlags {
+    /// Overrides the welding fields of `p` whose flag was given.
+    pub fn apply(&self, p: &mut Params) {
+        if self.weld {
+            p.weld = Some(true);
+        } else if self.no_weld {
+            p.weld = Some(false);
+        }
+        if let Some(t) = self.weld_tolerance {
+            p.weld_tolerance = t;
+        }
+    }
 }
 
 /// Parses a value by its serde name, so the flag accepts exactly what the
@@ -91,6 +129,10 @@ impl ParamFlags {
         if self.no_quality {
             p.quality.enabled = false;
         }
+        self.weld.apply(p);
+        if self.vertex_results {
+            p.vertex_results = true;
+        }
     }
 }
 
@@ -117,6 +159,37 @@ mod tests {
         assert_eq!(p.k_max, 5);
         assert_eq!(p.initial_passes, Params::default().initial_passes);
         assert!(p.preserve_volume);
+        assert_eq!(p.weld, None);
+        assert!(!p.vertex_results);
+    }
+
+    #[test]
+    fn weld_flags_set_the_weld_fields() {
+        let mut p = Params {
+            weld: Some(true),
+            ..Params::default()
+        };
+        let flags = ParamFlags {
+            weld: WeldFlags {
+                no_weld: true,
+                weld_tolerance: Some(0.001),
+                ..WeldFlags::default()
+            },
+            vertex_results: true,
+            ..ParamFlags::default()
+        };
+        flags.apply(&mut p);
+        assert_eq!(p.weld, Some(false));
+        assert_eq!(p.weld_tolerance, 0.001);
+        assert!(p.vertex_results);
+        WeldFlags {
+            weld: true,
+            ..WeldFlags::default()
+        }
+        .apply(&mut p);
+        assert_eq!(p.weld, Some(true));
+        WeldFlags::default().apply(&mut p);
+        assert_eq!(p.weld, Some(true), "no flag keeps the file's value");
     }
 
     #[test]

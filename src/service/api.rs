@@ -53,7 +53,8 @@ pub enum CancelReasonName {
 pub struct InputView {
     /// Format it was read as (`obj`, ...).
     pub format: String,
-    /// Vertex count.
+    /// Vertex count of the mesh as smoothed (after welding, when the file
+    /// was welded; the report's `mesh.file_vertices` has the file's count).
     pub vertices: usize,
     /// Face count.
     pub faces: usize,

@@ -242,6 +242,27 @@ mod tests {
     }
 
     #[test]
+    fn obj_index_and_coordinate_errors_are_422_with_their_line() {
+        use meshsmooth_core::io::{Format, ReadLimits, read};
+        for (text, code) in [
+            (
+                "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
+                "face_index_out_of_range",
+            ),
+            (
+                "v 0 0 0\nv inf 0 0\nv 0 1 0\nf 1 2 3\n",
+                "non_finite_coordinate",
+            ),
+        ] {
+            let e = read(text.as_bytes(), Format::Obj, &ReadLimits::default()).unwrap_err();
+            let p = Problem::from(e);
+            assert_eq!(p.code, code);
+            assert_eq!(p.status(), StatusCode::UNPROCESSABLE_ENTITY);
+            assert!(p.detail.contains("line"), "{}", p.detail);
+        }
+    }
+
+    #[test]
     fn problem_body_follows_rfc_9457() {
         let p = Problem::new("queue_full", "the job queue is full (2 jobs)").with_retry_after(3);
         let d = p.details();

@@ -1,7 +1,7 @@
 //! Reading an upload: the mesh (a `multipart/form-data` part or the raw
 //! body), the parameters (a JSON part or the query string) and the output
 //! format, under the size and time limits; the mesh is parsed on the
-//! blocking pool.
+//! blocking pool once the parameters are known (they choose the welding).
 
 use crate::service::error::{Problem, params_problem};
 use axum::body::Body;
@@ -9,7 +9,7 @@ use axum::extract::{FromRequest, Multipart, Query};
 use axum::http::{HeaderMap, Request, Uri, header};
 use futures_util::StreamExt;
 use meshsmooth_core::Params;
-use meshsmooth_core::io::{self, Document, Format, ReadLimits};
+use meshsmooth_core::io::{self, Document, Format, ReadLimits, ReadOptions};
 use serde_json::{Map, Value};
 use std::sync::Arc;
 use std::time::Duration;
@@ -155,7 +155,8 @@ pub async fn read_upload(req: Request<Body>, config: &UploadConfig) -> Result<Up
     };
     let bytes = raw.bytes.len() as u64;
     metrics::counter!("meshsmooth_upload_bytes_total").increment(bytes);
-    let document = parse(raw.bytes, format, config).await?;
+    let options = params.read_options(config.read_limits.clone());
+    let document = parse(raw.bytes, format, options, config).await?;
     Ok(Upload {
         output_format: query.output_format.unwrap_or(document.format),
         document,
@@ -326,18 +327,23 @@ fn multipart_problem(e: axum::extract::multipart::MultipartError) -> Problem {
     }
 }
 
-/// Parses on the blocking pool, a bounded number at a time.
-async fn parse(bytes: Vec<u8>, format: Format, config: &UploadConfig) -> Result<Document, Problem> {
+/// Parses with `options` (limits and welding) on the blocking pool, a
+/// bounded number at a time.
+async fn parse(
+    bytes: Vec<u8>,
+    format: Format,
+    options: ReadOptions,
+    config: &UploadConfig,
+) -> Result<Document, Problem> {
     let permit = config
         .parse_slots
         .clone()
         .acquire_owned()
         .await
         .map_err(|_| Problem::new("shutting_down", "the service is shutting down"))?;
-    let limits = config.read_limits.clone();
     let parsed = tokio::task::spawn_blocking(move || {
         let _permit = permit;
-        io::read(&bytes, format, &limits)
+        io::read_with(&bytes, format, &options)
     })
     .await;
     match parsed {
@@ -411,11 +417,11 @@ pub fn parse_output_format(name: &str) -> Result<Format, Problem> {
         .map_err(|e| Problem::new("unknown_output_format", e.to_string()))
 }
 
-/// A query value as JSON: numbers and booleans as such, anything else as a
-/// string.
+/// A query value as JSON: numbers, booleans and `null` as such, anything
+/// else as a string.
 fn scalar(raw: &str) -> Value {
     match serde_json::from_str::<Value>(raw) {
-        Ok(v @ (Value::Number(_) | Value::Bool(_))) => v,
+        Ok(v @ (Value::Number(_) | Value::Bool(_) | Value::Null)) => v,
         _ => Value::String(raw.to_owned()),
     }
 }
@@ -505,6 +511,25 @@ mod tests {
         assert_eq!(p.baseline.iterations, 7);
         assert!(!p.quality.enabled);
         assert_eq!(p.k_max, Params::default().k_max);
+    }
+
+    #[test]
+    fn weld_query_keys_are_null_or_booleans() {
+        for (q, weld) in [
+            ("weld=false", Some(false)),
+            ("weld=true", Some(true)),
+            ("weld=null", None),
+        ] {
+            let p = params_from_value(query(q).unwrap().params.unwrap(), "q").unwrap();
+            assert_eq!(p.weld, weld, "{q}");
+        }
+        let q = query("weld_tolerance=0.001&vertex_results=true").unwrap();
+        let p = params_from_value(q.params.unwrap(), "q").unwrap();
+        assert_eq!(p.weld_tolerance, 0.001);
+        assert!(p.vertex_results);
+        let e = params_from_value(query("weld=yes").unwrap().params.unwrap(), "q").unwrap_err();
+        assert_eq!(e.code, "invalid_parameter");
+        assert_eq!(e.field.as_deref(), Some("weld"));
     }
 
     #[test]

@@ -77,14 +77,14 @@ async fn every_bad_upload_gets_its_status_and_code() {
     let p = server
         .send(obj_req("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"))
         .await
-        .problem(422, "parse_error");
+        .problem(422, "face_index_out_of_range");
     let detail = p["detail"].as_str().unwrap();
     assert!(detail.contains("line 4") && detail.contains('9'), "{p}");
     // NaN coordinates.
     let p = server
         .send(obj_req("v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n"))
         .await
-        .problem(422, "parse_error");
+        .problem(422, "non_finite_coordinate");
     let detail = p["detail"].as_str().unwrap();
     assert!(
         detail.contains("line 2") && detail.contains("not finite"),

@@ -7,3 +7,4 @@ mod jobs;
 mod operations;
 mod overload;
 mod support;
+mod weld;

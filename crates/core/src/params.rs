@@ -5,6 +5,7 @@
 //! field's doc comment states it, and `tests::defaults_are_pinned` pins it.
 //! Unknown fields are rejected when deserialising.
 
+use crate::io::{ReadLimits, ReadOptions};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -96,6 +97,23 @@ pub struct Params {
     /// Restore the input's enclosed volume at the end by a uniform offset
     /// along the vertex normals (closed meshes only). Default true.
     pub preserve_volume: bool,
+    /// Join vertices that share a position before smoothing (glTF seams,
+    /// STL triangle soups). Every file vertex gets its welded vertex's
+    /// position, so seams stay closed and an output in the input's format
+    /// keeps the file's vertex count and order (another format gets the
+    /// welded mesh). `null` takes the format's default: on for
+    /// glTF/GLB and STL, off for OBJ and PLY. Default `null`.
+    pub weld: Option<bool>,
+    /// Welding tolerance as a fraction of the bounding-box diagonal; 0 joins
+    /// only equal positions. Default 0; range 0..=0.01.
+    pub weld_tolerance: f64,
+    /// Add per-vertex results (label, mean and Gaussian curvature,
+    /// displacement) to the written mesh: glTF attributes `_LABEL`,
+    /// `_MEAN_CURVATURE`, `_GAUSSIAN_CURVATURE`, `_DISPLACEMENT`; PLY vertex
+    /// properties `label`, `mean_curvature`, `gaussian_curvature`,
+    /// `displacement`. OBJ and STL cannot hold them: ignored there.
+    /// Default false.
+    pub vertex_results: bool,
     /// Mesh-quality fixes (section 2.4).
     pub quality: QualityParams,
     /// Parameters of the baseline methods.
@@ -120,6 +138,9 @@ impl Default for Params {
             bias_bound: 0.06,
             boundary: BoundaryRule::Fixed,
             preserve_volume: true,
+            weld: None,
+            weld_tolerance: 0.0,
+            vertex_results: false,
             quality: QualityParams::default(),
             baseline: BaselineParams::default(),
         }
@@ -253,6 +274,8 @@ impl Params {
         ] {
             check_f64(field, v, (0.0..=hi).contains(&v), allowed)?;
         }
+        let w = self.weld_tolerance;
+        check_f64("weld_tolerance", w, (0.0..=0.01).contains(&w), "0..=0.01")?;
         let q = &self.quality;
         let f = q.short_edge_fraction;
         check_f64(
@@ -282,6 +305,16 @@ impl Params {
         )?;
         Ok(())
     }
+
+    /// Reading options for a file to be smoothed with these parameters:
+    /// `limits` plus [`Params::weld`] and [`Params::weld_tolerance`].
+    pub fn read_options(&self, limits: ReadLimits) -> ReadOptions {
+        ReadOptions {
+            limits,
+            weld: self.weld,
+            weld_tolerance: self.weld_tolerance,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -306,6 +339,9 @@ mod tests {
         assert_eq!(p.bias_bound, 0.06);
         assert_eq!(p.boundary, BoundaryRule::Fixed);
         assert!(p.preserve_volume);
+        assert_eq!(p.weld, None);
+        assert_eq!(p.weld_tolerance, 0.0);
+        assert!(!p.vertex_results);
         assert_eq!(
             p.quality,
             QualityParams {
@@ -349,5 +385,66 @@ mod tests {
         assert_eq!(p.method, Method::Taubin);
         assert!(!p.quality.enabled);
         assert_eq!(p.k_max, Params::default().k_max);
+    }
+
+    #[test]
+    fn weld_is_null_true_or_false() {
+        for (json, weld) in [
+            (r#"{"weld": null}"#, None),
+            (r#"{"weld": true}"#, Some(true)),
+            (r#"{"weld": false}"#, Some(false)),
+            ("{}", None),
+        ] {
+            let p: Params = serde_json::from_str(json).unwrap();
+            assert_eq!(p.weld, weld, "{json}");
+            let back = serde_json::to_value(&p).unwrap();
+            assert_eq!(back["weld"], serde_json::to_value(weld).unwrap(), "{json}");
+        }
+        assert!(serde_json::from_str::<Params>(r#"{"weld": "yes"}"#).is_err());
+        let p: Params =
+            serde_json::from_str(r#"{"weld_tolerance": 0.001, "vertex_results": true}"#).unwrap();
+        assert_eq!(p.weld_tolerance, 0.001);
+        assert!(p.vertex_results);
+    }
+
+    #[test]
+    fn weld_tolerance_is_range_checked() {
+        for ok in [0.0, 1e-6, 0.01] {
+            let p = Params {
+                weld_tolerance: ok,
+                ..Params::default()
+            };
+            p.validate().unwrap();
+        }
+        for bad in [-1e-9, 0.0101, f64::NAN, f64::INFINITY] {
+            let p = Params {
+                weld_tolerance: bad,
+                ..Params::default()
+            };
+            let e = p.validate().unwrap_err();
+            assert_eq!(e.field, "weld_tolerance");
+            assert!(e.to_string().contains("0..=0.01"), "{e}");
+        }
+    }
+
+    #[test]
+    fn read_options_carry_the_weld_fields() {
+        let p = Params {
+            weld: Some(false),
+            weld_tolerance: 0.002,
+            ..Params::default()
+        };
+        let limits = ReadLimits {
+            max_vertices: 7,
+            max_faces: 9,
+        };
+        let o = p.read_options(limits.clone());
+        assert_eq!(o.limits, limits);
+        assert_eq!(o.weld, Some(false));
+        assert_eq!(o.weld_tolerance, 0.002);
+        assert_eq!(
+            Params::default().read_options(ReadLimits::default()),
+            ReadOptions::default()
+        );
     }
 }

@@ -16,7 +16,7 @@ use sha2::{Digest, Sha256};
 /// Version of the report's JSON schema: the major number changes when a
 /// field is removed or changes meaning, the minor number when fields are
 /// added.
-pub const SCHEMA_VERSION: &str = "1.0";
+pub const SCHEMA_VERSION: &str = "1.1";
 
 /// Width of one angle-histogram bin, in degrees.
 pub const ANGLE_BIN_DEG: f64 = 5.0;
@@ -236,6 +236,9 @@ pub struct MeshStatistics {
     pub components: u64,
     /// True when no edge is a boundary edge (volume is then reported).
     pub closed: bool,
+    /// Vertices in the file before welding; absent when the file was not
+    /// welded (then `vertices` is the file's count). Since schema 1.1.
+    pub file_vertices: Option<u64>,
 }
 
 /// Vertices per label of the paper's Table 2.

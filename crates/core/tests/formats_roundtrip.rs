@@ -67,7 +67,7 @@ const REFUSED: &[(&str, &str)] = &[
     ("obj/assimp_box_UTF16BE.obj", "parse_error"),
     // `3.1+e2` is not a number.
     ("obj/assimp_number_formats.obj", "parse_error"),
-    ("obj/tobj_invalid_index.obj", "parse_error"),
+    ("obj/tobj_invalid_index.obj", "face_index_out_of_range"),
     ("obj/tobj_lines.obj", "no_faces"),
     ("obj/trimesh_face_in_group_name.obj", "no_faces"),
     ("obj/trimesh_notenoughindices.obj", "parse_error"),

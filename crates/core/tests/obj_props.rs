@@ -268,10 +268,17 @@ proptest! {
         let bad_line = format!("v 1 {bad} 3\n");
         lines.insert(at, bad_line.as_bytes());
         let bytes = lines.concat();
+        // NaN and infinities have their own code; both name the line.
+        let non_finite = ["nan", "inf", "-infinity"].contains(&bad);
         match read_obj(&bytes, &ReadLimits::default()) {
-            Err(IoError::Parse { line, message, .. }) => {
-                prop_assert_eq!(line, Some(at + 1));
-                prop_assert!(message.contains(bad) && message.contains("y coordinate"), "{}", message);
+            Err(
+                e @ (IoError::Parse { .. } | IoError::NonFiniteCoordinate { .. }),
+            ) => {
+                let expected = if non_finite { "non_finite_coordinate" } else { "parse_error" };
+                prop_assert_eq!(e.code(), expected);
+                let text = e.to_string();
+                prop_assert!(text.contains(&format!("on line {}:", at + 1)), "{}", text);
+                prop_assert!(text.contains(bad) && text.contains("y coordinate"), "{}", text);
             }
             other => prop_assert!(false, "expected a parse error, got {:?}", other),
         }

@@ -3,7 +3,7 @@
 
 use super::{CancelReason, Inner, Job, JobResult, Outcome, TestHook, lock};
 use crate::service::error::Problem;
-use meshsmooth_core::io::{self, Document};
+use meshsmooth_core::io::{self, Document, WriteOptions};
 use meshsmooth_core::{Progress, SmoothError, Stage};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
@@ -126,14 +126,20 @@ fn execute(job: &Job, document: &Document, progress: &JobProgress) -> Result<Job
         Some(TestHook::Sleep(d)) => sleep_cancellably(job, d)?,
         None => {}
     }
-    let output =
-        meshsmooth_core::run(&document.mesh, &job.params, progress, &job.cancel).map_err(|e| {
-            match e {
-                SmoothError::Cancelled(_) => Stop::Cancelled,
-                e => Stop::Failed(e.into()),
-            }
+    let mut output = meshsmooth_core::run(&document.mesh, &job.params, progress, &job.cancel)
+        .map_err(|e| match e {
+            SmoothError::Cancelled(_) => Stop::Cancelled,
+            e => Stop::Failed(e.into()),
         })?;
-    let mesh = io::write(document, &output.positions, job.output_format)
+    output.report.mesh.file_vertices = document.vertex_map.as_ref().map(|m| m.len() as u64);
+    let options = WriteOptions {
+        results: job
+            .params
+            .vertex_results
+            .then(|| (&output.per_vertex).into()),
+        ..WriteOptions::default()
+    };
+    let mesh = io::write_with(document, &output.positions, job.output_format, &options)
         .map_err(|e| Stop::Failed(e.into()))?;
     let report = serde_json::to_vec(&output.report)
         .map_err(|_| Stop::Failed(Problem::internal("the quality report could not be encoded")))?;

@@ -277,6 +277,23 @@ pub enum IoError {
         line: Option<usize>,
         message: String,
     },
+    /// A face refers to a vertex the file does not define (OBJ: index 0,
+    /// beyond the vertices, or a relative index before the first vertex);
+    /// `line` is 1-based where the format has lines.
+    #[error("{format} parse error{}: {message}", line.map(|l| format!(" on line {l}")).unwrap_or_default())]
+    IndexOutOfRange {
+        format: &'static str,
+        line: Option<usize>,
+        message: String,
+    },
+    /// A coordinate is NaN or infinite; `line` is 1-based where the format
+    /// has lines.
+    #[error("{format} parse error{}: {message}", line.map(|l| format!(" on line {l}")).unwrap_or_default())]
+    NonFiniteCoordinate {
+        format: &'static str,
+        line: Option<usize>,
+        message: String,
+    },
     /// The input exceeds a configured limit. When found while streaming,
     /// `count` is how many were seen when the limit was passed.
     #[error("{what} count exceeds the limit of {limit} (found at least {count})")]
@@ -358,6 +375,9 @@ impl IoError {
     pub fn code(&self) -> &'static str {
         match self {
             IoError::Parse { .. } => "parse_error",
+            // The same codes as the mesh's own checks (`MeshError`).
+            IoError::IndexOutOfRange { .. } => "face_index_out_of_range",
+            IoError::NonFiniteCoordinate { .. } => "non_finite_coordinate",
             IoError::Limit { .. } => "limit_exceeded",
             IoError::NoFaces { .. } => "no_faces",
             IoError::Unsupported { .. } => "unsupported_content",

@@ -12,9 +12,11 @@
 //! Accepted: `\n` and `\r\n` line endings, a UTF-8 byte-order mark,
 //! trailing `#` comments, and bytes that are not UTF-8 inside lines that are
 //! copied verbatim (comments, group names). Rejected with an error naming
-//! the 1-based line: UTF-16 text (NUL bytes), bad numbers, NaN or infinite
-//! coordinates, index 0, indices out of range, faces with fewer than 3
-//! corners, and files without any face (smoothing needs a surface).
+//! the 1-based line: UTF-16 text (NUL bytes), bad numbers, faces with fewer
+//! than 3 corners (code `parse_error`), NaN or infinite coordinates
+//! (`non_finite_coordinate`), index 0 and indices out of range
+//! (`face_index_out_of_range`); and files without any face (`no_faces`:
+//! smoothing needs a surface).
 
 use super::{IoError, ReadLimits};
 use crate::mesh::Mesh;
@@ -130,6 +132,14 @@ fn write_coordinate(out: &mut Vec<u8>, x: f64) {
 
 fn parse_error(line: usize, message: String) -> IoError {
     IoError::Parse {
+        format: FORMAT,
+        line: Some(line),
+        message,
+    }
+}
+
+fn index_error(line: usize, message: String) -> IoError {
+    IoError::IndexOutOfRange {
         format: FORMAT,
         line: Some(line),
         message,
@@ -261,7 +271,7 @@ impl<'l> Reader<'l> {
                     format!("`v` needs x, y and z coordinates; {axis} is missing"),
                 ));
             };
-            *value = parse_coordinate(field, axis).map_err(|m| parse_error(line, m))?;
+            *value = parse_coordinate(field, axis, line)?;
             if axis == "x" {
                 span.0 = offset + start;
             }
@@ -284,11 +294,20 @@ impl<'l> Reader<'l> {
         let first = self.face_vertices.len();
         while let Some((_, _, field)) = fields.next_field() {
             let index = parse_corner(field).map_err(|m| parse_error(line, m))?;
+            if index == 0 {
+                return Err(index_error(
+                    line,
+                    format!(
+                        "face corner `{}` uses index 0; OBJ indices start at 1",
+                        shorten(&String::from_utf8_lossy(field))
+                    ),
+                ));
+            }
             let defined = self.positions.len() as u64;
             let resolved = if index < 0 {
                 let back = index.unsigned_abs();
                 if back > defined {
-                    return Err(parse_error(
+                    return Err(index_error(
                         line,
                         format!(
                             "relative vertex index {index} points before the first vertex: \
@@ -307,7 +326,7 @@ impl<'l> Reader<'l> {
                 one_based - 1
             };
             let resolved = u32::try_from(resolved)
-                .map_err(|_| parse_error(line, format!("vertex index {index} is too large")))?;
+                .map_err(|_| index_error(line, format!("vertex index {index} is too large")))?;
             self.face_vertices.push(resolved);
         }
         let arity = self.face_vertices.len() - first;
@@ -329,7 +348,7 @@ impl<'l> Reader<'l> {
     fn finish(self, bytes: &[u8]) -> Result<(Mesh, ObjSource), IoError> {
         let n = self.positions.len() as u64;
         if let Some(&(line, index)) = self.forward_refs.iter().find(|&&(_, i)| i > n) {
-            return Err(parse_error(
+            return Err(index_error(
                 line,
                 format!("face refers to vertex {index}, but the file defines only {n} vertices"),
             ));
@@ -359,26 +378,38 @@ impl<'l> Reader<'l> {
     }
 }
 
-/// Parses a finite coordinate.
-fn parse_coordinate(field: &[u8], axis: &str) -> Result<f64, String> {
-    let text = std::str::from_utf8(field)
-        .map_err(|_| format!("{axis} coordinate is not a number (it has non-ASCII bytes)"))?;
-    let value: f64 = text
-        .parse()
-        .map_err(|_| format!("{axis} coordinate `{}` is not a number", shorten(text)))?;
+/// Parses a finite coordinate of a `v` line on `line`.
+fn parse_coordinate(field: &[u8], axis: &str, line: usize) -> Result<f64, IoError> {
+    let text = std::str::from_utf8(field).map_err(|_| {
+        parse_error(
+            line,
+            format!("{axis} coordinate is not a number (it has non-ASCII bytes)"),
+        )
+    })?;
+    let value: f64 = text.parse().map_err(|_| {
+        parse_error(
+            line,
+            format!("{axis} coordinate `{}` is not a number", shorten(text)),
+        )
+    })?;
     if !value.is_finite() {
-        return Err(format!(
-            "{axis} coordinate `{}` is not finite (NaN or infinity)",
-            shorten(text)
-        ));
+        return Err(IoError::NonFiniteCoordinate {
+            format: FORMAT,
+            line: Some(line),
+            message: format!(
+                "{axis} coordinate `{}` is not finite (NaN or infinity)",
+                shorten(text)
+            ),
+        });
     }
     Ok(value)
 }
 
 /// Parses one face corner `v`, `v/vt`, `v//vn` or `v/vt/vn` and returns its
-/// vertex index as written (1-based, or negative for relative). Texture and
-/// normal indices must be integers when present; their range is not checked
-/// because `vt`/`vn` lines are carried through untouched.
+/// vertex index as written (1-based, negative for relative, or 0, which the
+/// caller refuses as out of range). Texture and normal indices must be
+/// integers when present; their range is not checked because `vt`/`vn`
+/// lines are carried through untouched.
 fn parse_corner(field: &[u8]) -> Result<i64, String> {
     let shown = || shorten(&String::from_utf8_lossy(field)).to_owned();
     let mut parts = field.split(|&b| b == b'/');
@@ -393,12 +424,6 @@ fn parse_corner(field: &[u8]) -> Result<i64, String> {
             )
         }
     })?;
-    if index == 0 {
-        return Err(format!(
-            "face corner `{}` uses index 0; OBJ indices start at 1",
-            shown()
-        ));
-    }
     let mut extra = 0;
     for part in parts {
         extra += 1;
@@ -455,7 +480,11 @@ mod tests {
 
     fn err_line(text: &str) -> (Option<usize>, String) {
         match read(text) {
-            Err(IoError::Parse { line, message, .. }) => (line, message),
+            Err(
+                IoError::Parse { line, message, .. }
+                | IoError::IndexOutOfRange { line, message, .. }
+                | IoError::NonFiniteCoordinate { line, message, .. },
+            ) => (line, message),
             other => panic!("expected a parse error, got {other:?}"),
         }
     }
@@ -657,6 +686,39 @@ mod tests {
 
         let (line, _) = err_line("v 0 0 0\r\nv 1 0 0\r\nv 0 1 0\r\nf 1 2 3 4\r\n");
         assert_eq!(line, Some(4));
+    }
+
+    #[test]
+    fn bad_indices_and_coordinates_have_their_own_codes() {
+        let code = |text: &str| {
+            let e = read(text).unwrap_err();
+            assert!(e.to_string().contains("OBJ parse error on line"), "{e}");
+            (e.code(), e.to_string())
+        };
+        for (text, line) in [
+            (format!("{SQUARE}f 1 2 9\n"), 5),
+            (format!("{SQUARE}f 1 2 3\nf 1 2 0\n"), 6),
+            ("v 0 0 0\nv 1 0 0\nf -1 -2 -3\nv 0 1 0\n".to_owned(), 3),
+            (format!("{SQUARE}f 1 2 4294967297\n"), 5),
+            (format!("{SQUARE}f 1 2 7/1/1\n"), 5),
+        ] {
+            let (code, message) = code(&text);
+            assert_eq!(code, "face_index_out_of_range", "{message}");
+            assert!(message.contains(&format!("line {line}")), "{message}");
+        }
+        for text in [
+            "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n",
+            "v 0 0 0\nv 0 -inf 0\nv 0 1 0\nf 1 2 3\n",
+            "v 0 0 0\nv 0 0 1e400\nv 0 1 0\nf 1 2 3\n",
+        ] {
+            let (code, message) = code(text);
+            assert_eq!(code, "non_finite_coordinate", "{message}");
+            assert!(message.contains("line 2"), "{message}");
+        }
+        // Malformed numbers and corners stay parse errors.
+        assert_eq!(code("v 0 0 0\nv x 0 0\n").0, "parse_error");
+        assert_eq!(code(&format!("{SQUARE}f 1 x 3\n")).0, "parse_error");
+        assert_eq!(code(&format!("{SQUARE}f 1 2\n")).0, "parse_error");
     }
 
     #[test]
