@@ -27,6 +27,9 @@ pub const MIN_RELATIVE_PIVOT: f64 = 1e-7;
 /// before fitting.
 pub const MAX_FIT_POINTS: usize = 512;
 
+/// Fits of up to this many points gather them on the stack.
+const STACK_POINTS: usize = 64;
+
 /// Which model a fit ended up using.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FitKind {
@@ -95,24 +98,35 @@ pub fn fit_neighbours(
     if neighbours.len() < 3 {
         return QuadricFit::FIXED;
     }
-    let sum_d2: f64 = neighbours
-        .iter()
-        .map(|&j| positions[j as usize].distance_squared(frame.origin))
-        .sum();
+    // One gather of the scattered positions, in local coordinates; the
+    // moments then run over a small contiguous buffer (on the stack for the
+    // usual sizes: zeroing a buffer for the largest case would cost more
+    // than a small fit).
+    let mut stack = [DVec3::ZERO; STACK_POINTS];
+    let mut heap = Vec::new();
+    let local = if neighbours.len() <= STACK_POINTS {
+        &mut stack[..neighbours.len()]
+    } else {
+        heap.resize(neighbours.len(), DVec3::ZERO);
+        &mut heap[..]
+    };
+    let mut sum_d2 = 0.0;
+    for (l, &j) in local.iter_mut().zip(neighbours) {
+        let d = positions[j as usize] - frame.origin;
+        sum_d2 += d.length_squared();
+        *l = DVec3::new(frame.u.dot(d), frame.v.dot(d), frame.w.dot(d));
+    }
     if sum_d2.is_nan() || sum_d2 <= 0.0 {
         return QuadricFit::FIXED;
     }
     let s = (sum_d2 / neighbours.len() as f64).sqrt();
-    let local = neighbours
-        .iter()
-        .map(|&j| frame.to_local(positions[j as usize]));
     fit_points(local, s, plane_only)
 }
 
 /// Fits to points already in local coordinates; `s` is the neighbourhood
 /// scale (root mean square distance).
 pub fn fit_local(local: &[DVec3], s: f64) -> QuadricFit {
-    fit_points(local.iter().copied(), s, false)
+    fit_points(local, s, false)
 }
 
 /// The weight of a point at squared scaled distance `t = d^2 / s^2`: a
@@ -125,43 +139,73 @@ pub fn weight(t: f64) -> f64 {
     1.0 / (1.0 + h * (1.0 + h * (0.5 + h * (1.0 / 6.0))))
 }
 
-fn fit_points(local: impl Iterator<Item = DVec3>, s: f64, plane_only: bool) -> QuadricFit {
-    let mut count = 0usize;
-    let inv_s = 1.0 / s;
-    // Weighted moments in scaled coordinates. The normal matrix of the
-    // monomials [x^2, xy, y^2, x, y, 1] only holds 15 distinct moments
-    // (x^i y^j, i + j <= 4); the right-hand side holds 6 more.
-    let mut mo = [0.0f64; 15];
-    let mut rz = [0.0f64; 6];
-    for l in local {
-        count += 1;
-        let (x, y, z) = (l.x * inv_s, l.y * inv_s, l.z * inv_s);
-        let w = weight(x * x + y * y + z * z);
-        let (wx, wy) = (w * x, w * y);
-        let (wxx, wxy, wyy) = (wx * x, wx * y, wy * y);
-        let (wxxx, wxxy, wxyy, wyyy) = (wxx * x, wxx * y, wxy * y, wyy * y);
-        mo[0] += w;
-        mo[1] += wx;
-        mo[2] += wy;
-        mo[3] += wxx;
-        mo[4] += wxy;
-        mo[5] += wyy;
-        mo[6] += wxxx;
-        mo[7] += wxxy;
-        mo[8] += wxyy;
-        mo[9] += wyyy;
-        mo[10] += wxxx * x;
-        mo[11] += wxxx * y;
-        mo[12] += wxxy * y;
-        mo[13] += wxyy * y;
-        mo[14] += wyyy * y;
-        rz[0] += wxx * z;
-        rz[1] += wxy * z;
-        rz[2] += wyy * z;
-        rz[3] += wx * z;
-        rz[4] += wy * z;
-        rz[5] += w * z;
+/// Independent partial sums per moment: each of the four lanes adds every
+/// fourth point, and the lanes are added in a fixed order at the end, so the
+/// compiler may use vector registers without changing a single bit of the
+/// result.
+const LANES: usize = 4;
+
+/// Weighted moments, in scaled coordinates, of the points `local / s`. The
+/// normal matrix of the monomials `[x^2, xy, y^2, x, y, 1]` only holds 15
+/// distinct moments (`x^i y^j`, `i + j <= 4`); the right-hand side 6 more.
+fn moments(local: &[DVec3], inv_s: f64) -> ([f64; 15], [f64; 6]) {
+    let mut acc = [[0.0f64; LANES]; 21];
+    for chunk in local.chunks(LANES) {
+        let (mut x, mut y, mut z) = ([0.0; LANES], [0.0; LANES], [0.0; LANES]);
+        let mut present = [0.0; LANES];
+        for (i, l) in chunk.iter().enumerate() {
+            (x[i], y[i], z[i]) = (l.x * inv_s, l.y * inv_s, l.z * inv_s);
+            present[i] = 1.0;
+        }
+        for i in 0..LANES {
+            let w = present[i] * weight(x[i] * x[i] + y[i] * y[i] + z[i] * z[i]);
+            let (wx, wy) = (w * x[i], w * y[i]);
+            let (wxx, wxy, wyy) = (wx * x[i], wx * y[i], wy * y[i]);
+            let (wxxx, wxxy, wxyy, wyyy) = (wxx * x[i], wxx * y[i], wxy * y[i], wyy * y[i]);
+            let terms = [
+                w,
+                wx,
+                wy,
+                wxx,
+                wxy,
+                wyy,
+                wxxx,
+                wxxy,
+                wxyy,
+                wyyy,
+                wxxx * x[i],
+                wxxx * y[i],
+                wxxy * y[i],
+                wxyy * y[i],
+                wyyy * y[i],
+                wxx * z[i],
+                wxy * z[i],
+                wyy * z[i],
+                wx * z[i],
+                wy * z[i],
+                w * z[i],
+            ];
+            for (a, t) in acc.iter_mut().zip(terms) {
+                a[i] += t;
+            }
+        }
     }
+    let total = |a: &[f64; LANES]| (a[0] + a[1]) + (a[2] + a[3]);
+    let mut mo = [0.0; 15];
+    let mut rz = [0.0; 6];
+    for (m, a) in mo.iter_mut().zip(&acc[..15]) {
+        *m = total(a);
+    }
+    for (r, a) in rz.iter_mut().zip(&acc[15..]) {
+        *r = total(a);
+    }
+    (mo, rz)
+}
+
+fn fit_points(local: &[DVec3], s: f64, plane_only: bool) -> QuadricFit {
+    let count = local.len();
+    let inv_s = 1.0 / s;
+    let (mo, rz) = moments(local, inv_s);
     let [
         m1,
         mx,
