@@ -92,10 +92,15 @@ fn normal_only_boundary_moves_along_the_normal() {
             // only in z, and by no more than the bumps' height.
             let d = *a - *b;
             assert!(d.length() < 0.2, "vertex {v} moved {d}");
-            assert!(
-                d.x.abs() + d.y.abs() < 0.5 * d.z.abs() + 1e-9,
-                "vertex {v} moved {d}"
-            );
+            let tangential = d.x.abs() + d.y.abs();
+            if t.vertex_faces(v).len() == 1 {
+                // A corner's normal is its one face's, which tilts while the
+                // 2-ring passes work on the checkerboard: it may drift
+                // sideways, but by a few hundredths of an edge at most.
+                assert!(tangential < 0.05, "corner {v} moved {d}");
+            } else {
+                assert!(tangential < 0.5 * d.z.abs() + 1e-9, "vertex {v} moved {d}");
+            }
         }
     }
     assert!(moved > 0);
