@@ -56,7 +56,7 @@ impl RingWalker {
     pub fn grow_beam(&mut self, topo: &Topology, beam: usize) -> &[u32] {
         let g = self.generation;
         let start = self.found.len();
-        let mut len = start;
+        let mut end = start;
         let ring_count = self.ring_starts.len();
         let (frontier, take) = if ring_count == 1 {
             (0..0, 1)
@@ -65,25 +65,35 @@ impl RingWalker {
             let take = range.len().min(beam.max(1));
             (range, take)
         };
-        for q in 0..take {
+        // The `q`-th expanded vertex is `frontier[q * len / take]`, stepped
+        // without a division per vertex.
+        let (len, mut index, mut rest) = (frontier.len(), frontier.start, 0);
+        let (step, step_rest) = (len / take.max(1), len % take.max(1));
+        for _ in 0..take {
             let u = if ring_count == 1 {
                 self.centre as usize
             } else {
-                self.found[frontier.start + q * frontier.len() / take] as usize
+                self.found[index] as usize
             };
+            index += step;
+            rest += step_rest;
+            if rest >= take {
+                rest -= take;
+                index += 1;
+            }
             // Branch-free marking: whether a neighbour is new is close to a
             // coin toss, so a branch on it would mispredict half the time.
             let nb = topo.neighbors(u);
-            self.found.resize(len + nb.len(), 0);
+            self.found.resize(end + nb.len(), 0);
             for &w in nb {
                 let stamp = &mut self.stamp[w as usize];
                 let fresh = *stamp != g;
                 *stamp = g;
-                self.found[len] = w;
-                len += usize::from(fresh);
+                self.found[end] = w;
+                end += usize::from(fresh);
             }
         }
-        self.found.truncate(len);
+        self.found.truncate(end);
         self.ring_starts.push(self.found.len());
         &self.found[start..]
     }
@@ -142,6 +152,22 @@ mod tests {
         assert_eq!(w.k_ring(&t, centre, 2).len(), 12);
         assert_eq!(w.ring(2).len(), 8);
         assert!(!w.found().contains(&(centre as u32)));
+    }
+
+    #[test]
+    fn beam_walk_past_an_exhausted_component_is_empty() {
+        let m = crate::mesh::Mesh::from_polygons(
+            vec![DVec3::ZERO, DVec3::X, DVec3::Y],
+            &[[0u32, 1, 2]],
+        )
+        .unwrap();
+        let t = Topology::build(&m);
+        let mut w = RingWalker::new(3);
+        w.start(&t, 0);
+        assert_eq!(w.grow_beam(&t, 4).len(), 2);
+        assert!(w.grow_beam(&t, 4).is_empty());
+        assert!(w.grow_beam(&t, 4).is_empty(), "growing from an empty ring");
+        assert_eq!(w.rings(), 3);
     }
 
     #[test]

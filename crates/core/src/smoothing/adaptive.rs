@@ -175,8 +175,11 @@ fn grow(
             let z = d.dot(normal);
             let r2 = (d.length_squared() - z * z).max(0.0);
             radius2 += r2;
-            if r2 > 0.0 {
-                bend = bend.max(z.abs() / r2);
+            // Finite and non-negative: a plain comparison (one `maxsd`)
+            // instead of `f64::max`'s NaN handling.
+            let b = if r2 > 0.0 { z.abs() / r2 } else { 0.0 };
+            if b > bend {
+                bend = b;
             }
         }
         // A candidate at height `z` over the tangent plane and radius `rho`
