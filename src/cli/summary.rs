@@ -60,7 +60,11 @@ pub fn smoothed(
         input.twisted_quads,
         output.short_edges,
         input.short_edges
-    )
+    )?;
+    for warning in &r.warnings {
+        writeln!(w, "  warning   {warning}")?;
+    }
+    Ok(())
 }
 
 /// The table printed by `meshsmooth report`.

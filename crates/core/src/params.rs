@@ -95,6 +95,12 @@ pub struct Params {
     /// sits `rho^4 kappa^3 / 48` above it; `kappa` is estimated from the
     /// heights of the ring over the tangent plane. Default 0.06; range 0..=10.
     pub bias_bound: f64,
+    /// A neighbour whose normal turns more than this many degrees from the
+    /// vertex's normal is left out of the vertex's fits: it lies on the far
+    /// side of a thin plate or tube (a one-voxel sheet, a neurite) or
+    /// across a fold, and fitting it would pull both sides together (open
+    /// in the paper). 180 keeps every neighbour. Default 60; range 0..=180.
+    pub max_normal_angle_deg: f64,
     /// What boundary vertices do. Default `fixed`.
     pub boundary: BoundaryRule,
     /// Restore the input's enclosed volume at the end by a uniform offset
@@ -139,6 +145,7 @@ impl Default for Params {
             std_tolerance: 0.005,
             curvature_std_bound: 0.05,
             bias_bound: 0.06,
+            max_normal_angle_deg: 60.0,
             boundary: BoundaryRule::Fixed,
             preserve_volume: true,
             weld: None,
@@ -277,6 +284,12 @@ impl Params {
                 "0..=100",
             ),
             ("bias_bound", self.bias_bound, 10.0, "0..=10"),
+            (
+                "max_normal_angle_deg",
+                self.max_normal_angle_deg,
+                180.0,
+                "0..=180",
+            ),
         ] {
             check_f64(field, v, (0.0..=hi).contains(&v), allowed)?;
         }
@@ -312,6 +325,17 @@ impl Params {
         Ok(())
     }
 
+    /// Cosine of [`Params::max_normal_angle_deg`]: the smallest accepted
+    /// cosine between a fitted neighbour's normal and the vertex's (below
+    /// -1 at 180°, so nothing is left out).
+    pub fn min_normal_cos(&self) -> f64 {
+        if self.max_normal_angle_deg >= 180.0 {
+            f64::NEG_INFINITY
+        } else {
+            self.max_normal_angle_deg.to_radians().cos()
+        }
+    }
+
     /// Reading options for a file to be smoothed with these parameters:
     /// `limits` plus [`Params::weld`] and [`Params::weld_tolerance`].
     pub fn read_options(&self, limits: ReadLimits) -> ReadOptions {
@@ -343,6 +367,7 @@ mod tests {
         assert_eq!(p.std_tolerance, 0.005);
         assert_eq!(p.curvature_std_bound, 0.05);
         assert_eq!(p.bias_bound, 0.06);
+        assert_eq!(p.max_normal_angle_deg, 60.0);
         assert_eq!(p.boundary, BoundaryRule::Fixed);
         assert!(p.preserve_volume);
         assert_eq!(p.weld, None);

@@ -1,7 +1,7 @@
 //! `run(mesh, &params, &progress, &cancel)`: the whole smoothing pipeline,
 //! one entry point shared by the CLI and the service.
 
-use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length};
+use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length, signed_volume};
 use crate::params::{BoundaryRule, Method, ParamError, Params};
 use crate::quality::{improve, measure_stage, mesh_statistics};
 use crate::report::{
@@ -164,6 +164,9 @@ pub struct WangYuRun {
     pub adaptive_fits: FitStats,
     /// Offset along the normals applied to restore the volume (0 if none).
     pub volume_offset: f64,
+    /// Relative volume change left when restoring the volume was asked for
+    /// but refused (the offset needed was too large or did not converge).
+    pub volume_not_restored: Option<f64>,
     /// Milliseconds per stage.
     pub timings_ms: Vec<(Stage, f64)>,
 }
@@ -183,6 +186,7 @@ pub fn wang_yu(
 ) -> Result<WangYuRun, Cancelled> {
     let mut timings_ms = Vec::new();
     let max_points = params.max_fit_points as usize;
+    let min_cos = params.min_normal_cos();
     let t = Instant::now();
     let mut positions = mesh.positions().to_vec();
     let passes = params.initial_passes;
@@ -192,6 +196,7 @@ pub fn wang_yu(
         &mut positions,
         &two_ring,
         movable,
+        min_cos,
         passes,
         cancel,
         |p| progress.update(Stage::Initial, p as f64 / passes.max(1) as f64),
@@ -222,7 +227,7 @@ pub fn wang_yu(
         }
         push_thinned(w, max_points, out);
     });
-    let hk = vertex_curvatures(mesh, topo, &positions, &curvature_hoods).0;
+    let hk = vertex_curvatures(mesh, topo, &positions, &curvature_hoods, min_cos).0;
     drop(curvature_hoods);
     let l = mean_edge_length(mesh, &positions);
     let labels: Vec<Label> = hk
@@ -256,17 +261,23 @@ pub fn wang_yu(
         &mut positions,
         &hoods,
         movable,
+        min_cos,
         passes,
         cancel,
         |p| progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64),
     )?;
     let curvature = hk_last.unwrap_or(hk);
     let mut volume_offset = 0.0;
+    let mut volume_not_restored = None;
     if params.preserve_volume && topo.num_boundary_edges() == 0 {
         let target = mesh.signed_volume();
         // More than half an edge length is no smoothing bias to undo.
         let max_offset = 0.5 * mean_edge_length(mesh, &positions);
         volume_offset = restore_volume(mesh, topo, &mut positions, movable, target, max_offset);
+        let change = (signed_volume(mesh, &positions) - target) / target.abs();
+        if volume_offset == 0.0 && change.abs() > 1e-6 {
+            volume_not_restored = Some(change);
+        }
     }
     timings_ms.push((Stage::Adaptive, ms(t)));
     Ok(WangYuRun {
@@ -278,6 +289,7 @@ pub fn wang_yu(
         initial_fits,
         adaptive_fits,
         volume_offset,
+        volume_not_restored,
         timings_ms,
     })
 }
@@ -312,7 +324,8 @@ pub fn run(
     let topo = Topology::build(mesh);
     let movable = movable_mask(&topo, params.boundary);
     let two_ring = Neighbourhoods::two_ring(&topo, params.max_fit_points as usize);
-    let (input_curvature, _) = vertex_curvatures(mesh, &topo, input, &two_ring);
+    let (input_curvature, _) =
+        vertex_curvatures(mesh, &topo, input, &two_ring, params.min_normal_cos());
     let mut report = QualityReport::new(mesh_statistics(mesh, &topo), Reproducibility::new(params));
     report.stages.input = Some(measure_stage(
         mesh,
@@ -350,6 +363,15 @@ pub fn run(
                 adaptive_fits: r.adaptive_fits.into(),
                 volume_offset: r.volume_offset,
             });
+            if let Some(change) = r.volume_not_restored {
+                report.warnings.push(format!(
+                    "the enclosed volume changed by {:+.2}% and could not be restored: the \
+                     uniform offset it needs is more than half an edge length (the mesh may be \
+                     too coarse or too thin for quadric fitting, or the volume restoration \
+                     cannot undo a collapse)",
+                    100.0 * change
+                ));
+            }
             timings.extend(r.timings_ms.iter().copied());
             timings.push((Stage::Report, ms(t)));
             let labels = r.labels.iter().map(|&l| l as u8).collect();
@@ -393,6 +415,19 @@ pub fn run(
     ));
     timings.push((Stage::Report, ms(t)));
     progress.update(Stage::Report, 1.0);
+    if let Some(inverted) = report
+        .stages
+        .final_stage
+        .as_ref()
+        .map(|s| s.inverted_faces)
+        .filter(|&n| n > 0)
+    {
+        report.warnings.push(format!(
+            "{inverted} faces are inverted relative to the input: the surface folded there \
+             (typically at thin, pinched or non-manifold parts); look at those regions, or \
+             smooth less (fewer passes, a smaller k_max)"
+        ));
+    }
 
     let displacement = positions
         .iter()
@@ -434,7 +469,13 @@ pub fn run(
 pub fn measure(mesh: &Mesh, params: &Params) -> QualityReport {
     let topo = Topology::build(mesh);
     let two_ring = Neighbourhoods::two_ring(&topo, params.max_fit_points as usize);
-    let (curvature, _) = vertex_curvatures(mesh, &topo, mesh.positions(), &two_ring);
+    let (curvature, _) = vertex_curvatures(
+        mesh,
+        &topo,
+        mesh.positions(),
+        &two_ring,
+        params.min_normal_cos(),
+    );
     let mut report = QualityReport::new(mesh_statistics(mesh, &topo), Reproducibility::new(params));
     report.stages.input = Some(measure_stage(
         mesh,

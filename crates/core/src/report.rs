@@ -45,6 +45,10 @@ pub struct QualityReport {
     pub total_ms: f64,
     /// Tool, parameters and content hashes that reproduce the run.
     pub reproducibility: Reproducibility,
+    /// Plain-language notes on results a user should look at (a volume
+    /// that could not be restored, faces left inverted); empty when there
+    /// is nothing to say.
+    pub warnings: Vec<String>,
 }
 
 impl QualityReport {
@@ -60,6 +64,7 @@ impl QualityReport {
             timings: Vec::new(),
             total_ms: 0.0,
             reproducibility,
+            warnings: Vec::new(),
         }
     }
 }

@@ -324,6 +324,9 @@ pub(crate) struct MoveTester {
     input_normals: Vec<DVec3>,
     before: Vec<FaceState>,
     cos_goal: f64,
+    /// Each vertex given to `begin` with its longest edge: no move may take
+    /// it farther than that.
+    reach: Vec<(usize, f64)>,
 }
 
 impl MoveTester {
@@ -340,6 +343,17 @@ impl MoveTester {
         cos_goal: f64,
     ) {
         self.cos_goal = cos_goal;
+        self.reach.clear();
+        for &v in vertices {
+            let p = positions[v];
+            let longest = topo
+                .neighbors(v)
+                .iter()
+                .map(|&w| positions[w as usize].distance_squared(p))
+                .fold(0.0f64, f64::max)
+                .sqrt();
+            self.reach.push((v, longest));
+        }
         self.faces.clear();
         for &v in vertices {
             for &f in topo.vertex_faces(v) {
@@ -395,6 +409,13 @@ impl MoveTester {
             deficit: (0.0, 0.0),
             newly_sharp: false,
         };
+        // A fix moves a vertex within its star; a longer jump (a fit or
+        // centroid gone wrong on a tangled patch) is never a repair.
+        verdict.new_defect = moves.iter().any(|&(w, p)| {
+            let reach = self.reach.iter().find(|r| r.0 == w).map_or(0.0, |r| r.1);
+            let jump = p.distance(positions[w]);
+            jump > reach || jump.is_nan()
+        });
         for ((&f, b), &start) in self.faces.iter().zip(&self.before).zip(&self.starts) {
             let normals = &self.input_normals[start as usize..];
             let a = face_state_at(mesh.face(f as usize), pos, normals, self.cos_goal);
@@ -815,5 +836,21 @@ mod tests {
         let worse = tester.judge(&m, &[(v, DVec3::new(1.2, 1.1, 0.0))], &input);
         assert!(!worse.new_defect && !worse.keeps_quality() && !worse.improves(1.0));
         assert_eq!(m.positions(), &input[..]);
+    }
+
+    #[test]
+    fn a_move_beyond_the_longest_edge_is_a_defect() {
+        let m = grid(3);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let v = at(3, 1, 1);
+        let mut tester = MoveTester::default();
+        tester.begin(&m, &t, &[v], &input, &input, 20f64.to_radians().cos());
+        // Straight up by 0.9 and by 1.1 edge lengths: no face inverts
+        // either way, but only the first stays within the vertex's star.
+        let near = tester.judge(&m, &[(v, DVec3::new(1.0, 1.0, 0.9))], &input);
+        assert!(!near.new_defect);
+        let far = tester.judge(&m, &[(v, DVec3::new(1.0, 1.0, 1.1))], &input);
+        assert!(far.new_defect && far.inverted.1 == 0);
     }
 }

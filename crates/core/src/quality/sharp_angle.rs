@@ -58,7 +58,9 @@ use serde::{Deserialize, Serialize};
 pub struct SharpAngleStats {
     /// Faces with a split-triangle angle below the threshold before the fix.
     pub faces_found: u64,
-    /// Accepted vertex moves, over all sweeps.
+    /// Accepted vertex moves, over all sweeps. The fix also visits the
+    /// corners of faces inverted relative to the input, so it can move
+    /// vertices with no sharp angle found (e.g. at a threshold of 0).
     pub moves: u64,
     /// Vertex visits where no candidate position was an improvement (the
     /// vertex stayed), over all sweeps.

@@ -9,18 +9,29 @@ use crate::mesh::{Mesh, Topology};
 use glam::DVec3;
 
 /// `(H, K)` at every vertex from a fit to its neighbourhood in `positions`
-/// (0 where the vertex has no usable normal or is not fitted).
+/// (0 where the vertex has no usable normal or is not fitted); neighbours
+/// facing away by a cosine below `min_cos` are left out.
 pub fn vertex_curvatures(
     mesh: &Mesh,
     topo: &Topology,
     positions: &[DVec3],
     hoods: &Neighbourhoods,
+    min_cos: f64,
 ) -> (Curvatures, FitStats) {
     let n = positions.len();
     let mut scratch = vec![DVec3::ZERO; n];
     let mut hk = vec![(0.0, 0.0); n];
     let all = vec![true; n];
-    let stats = fit_pass(mesh, topo, positions, hoods, &all, &mut scratch, &mut hk);
+    let stats = fit_pass(
+        mesh,
+        topo,
+        positions,
+        hoods,
+        &all,
+        min_cos,
+        &mut scratch,
+        &mut hk,
+    );
     (hk, stats)
 }
 

@@ -11,6 +11,7 @@ use std::sync::atomic::AtomicBool;
 /// Runs `passes` passes over `hoods` starting from `positions` (updated in
 /// place). Returns the summed fit statistics and the curvature of the last
 /// pass's fits (before its projection), or `None` when `passes == 0`.
+/// `min_cos` is [`fit_pass`]'s.
 #[allow(clippy::too_many_arguments)]
 pub fn smooth_passes(
     mesh: &Mesh,
@@ -18,6 +19,7 @@ pub fn smooth_passes(
     positions: &mut Vec<DVec3>,
     hoods: &Neighbourhoods,
     movable: &[bool],
+    min_cos: f64,
     passes: u32,
     cancel: &AtomicBool,
     mut on_pass: impl FnMut(u32),
@@ -28,7 +30,9 @@ pub fn smooth_passes(
     let mut stats = FitStats::default();
     for pass in 0..passes {
         check(cancel)?;
-        let s = fit_pass(mesh, topo, positions, hoods, movable, &mut next, &mut hk);
+        let s = fit_pass(
+            mesh, topo, positions, hoods, movable, min_cos, &mut next, &mut hk,
+        );
         stats.accumulate(s);
         std::mem::swap(positions, &mut next);
         on_pass(pass + 1);

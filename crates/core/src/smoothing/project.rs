@@ -8,7 +8,7 @@
 use super::frame::Frame;
 use super::neighbourhood::Neighbourhoods;
 use super::normals::vertex_normals;
-use super::quadric_fit::{FitKind, fit_neighbours};
+use super::quadric_fit::{Facing, FitKind, fit_neighbours};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -54,14 +54,18 @@ pub type Curvatures = Vec<(f64, f64)>;
 
 /// One Jacobi pass: fits every movable vertex's neighbourhood in
 /// `positions` and writes the projected positions to `out` (immovable
-/// vertices are copied). Returns the fit statistics and, per vertex, the
-/// curvature of its fit (0 where it was not fitted).
+/// vertices are copied). Neighbours whose normal makes a cosine below
+/// `min_cos` with the vertex's are left out of its fit ([`Facing`]).
+/// Returns the fit statistics and, per vertex, the curvature of its fit (0
+/// where it was not fitted).
+#[allow(clippy::too_many_arguments)]
 pub fn fit_pass(
     mesh: &Mesh,
     topo: &Topology,
     positions: &[DVec3],
     hoods: &Neighbourhoods,
     movable: &[bool],
+    min_cos: f64,
     out: &mut [DVec3],
     curvature: &mut [(f64, f64)],
 ) -> FitStats {
@@ -81,7 +85,12 @@ pub fn fit_pass(
             }
             // A movable boundary vertex (rule `normal_only`) fits a plane.
             let plane_only = topo.kind(v) == VertexKind::Boundary;
-            let fit = fit_neighbours(&Frame::new(p, n), positions, hoods.get(v), plane_only);
+            let facing = Facing {
+                normals: &normals,
+                min_cos,
+            };
+            let frame = Frame::new(p, n);
+            let fit = fit_neighbours(&frame, positions, hoods.get(v), plane_only, Some(facing));
             match fit.kind {
                 FitKind::Quadric => s.quadric = 1,
                 FitKind::Plane => s.plane_fallback = 1,

@@ -82,17 +82,31 @@ impl QuadricFit {
 /// Fits a quadric to `positions[neighbours]` in `frame`. At most
 /// [`MAX_FIT_POINTS`] neighbours are used (the rest are ignored).
 pub fn fit_quadric(frame: &Frame, positions: &[DVec3], neighbours: &[u32]) -> QuadricFit {
-    fit_neighbours(frame, positions, neighbours, false)
+    fit_neighbours(frame, positions, neighbours, false, None)
+}
+
+/// Neighbours a fit leaves out: those whose unit normal makes a cosine
+/// below `min_cos` with the fitted vertex's normal. They lie on the far
+/// side of a thin plate or tube (a one-voxel sheet, a neurite) or across a
+/// fold, and fitting them would pull the two sides together.
+#[derive(Debug, Clone, Copy)]
+pub struct Facing<'a> {
+    /// Unit normal of every vertex.
+    pub normals: &'a [DVec3],
+    /// Smallest accepted cosine between a neighbour's normal and the
+    /// vertex's.
+    pub min_cos: f64,
 }
 
 /// [`fit_quadric`], or with `plane_only` the plane `e x + f y + g` alone:
 /// used for boundary vertices, whose one-sided neighbourhood would make a
-/// quadric extrapolate.
+/// quadric extrapolate. With `facing`, neighbours facing away are left out.
 pub fn fit_neighbours(
     frame: &Frame,
     positions: &[DVec3],
     neighbours: &[u32],
     plane_only: bool,
+    facing: Option<Facing>,
 ) -> QuadricFit {
     let neighbours = &neighbours[..neighbours.len().min(MAX_FIT_POINTS)];
     if neighbours.len() < 3 {
@@ -111,16 +125,24 @@ pub fn fit_neighbours(
         &mut heap[..]
     };
     let mut sum_d2 = 0.0;
-    for (l, &j) in local.iter_mut().zip(neighbours) {
+    let mut kept = 0;
+    for &j in neighbours {
+        if let Some(f) = facing {
+            let cos = f.normals[j as usize].dot(frame.w);
+            if cos < f.min_cos || cos.is_nan() {
+                continue;
+            }
+        }
         let d = positions[j as usize] - frame.origin;
         sum_d2 += d.length_squared();
-        *l = DVec3::new(frame.u.dot(d), frame.v.dot(d), frame.w.dot(d));
+        local[kept] = DVec3::new(frame.u.dot(d), frame.v.dot(d), frame.w.dot(d));
+        kept += 1;
     }
-    if sum_d2.is_nan() || sum_d2 <= 0.0 {
+    if kept < 3 || sum_d2.is_nan() || sum_d2 <= 0.0 {
         return QuadricFit::FIXED;
     }
-    let s = (sum_d2 / neighbours.len() as f64).sqrt();
-    fit_points(local, s, plane_only)
+    let s = (sum_d2 / kept as f64).sqrt();
+    fit_points(&local[..kept], s, plane_only)
 }
 
 /// Fits to points already in local coordinates; `s` is the neighbourhood
