@@ -198,9 +198,11 @@ fn run_smooth(args: SmoothArgs) -> Result<(), Failure> {
             "the output and the report cannot both go to stdout"
         )));
     }
-    let params = load_params(&args)?;
+    let mut params = load_params(&args)?;
     let read_options = params.read_options(ReadLimits::default());
     let (input_bytes, doc) = read_input(&args.input, args.input_format, &read_options)?;
+    // The report records the welding as done, not as asked (`null`).
+    params.weld = Some(doc.welded);
     let out_format = args
         .format
         .or_else(|| {

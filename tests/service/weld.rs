@@ -47,7 +47,10 @@ async fn stl_soups_are_welded_unless_asked_not_to() {
     // Default (`weld` null): STL is welded; the result keeps the file's
     // vertices, each copy at its welded vertex's position.
     let (job, report) = run(&server, Req::raw("/v1/jobs", "model/stl", stl.clone())).await;
+    // Asked as `null` (the format's default): the job shows the request,
+    // the report what was done.
     assert_eq!(job["params"]["weld"], Value::Null);
+    assert_eq!(report["reproducibility"]["params"]["weld"], true);
     assert_eq!(job["input"]["vertices"], welded);
     assert_eq!(report["schema_version"], "1.1");
     assert_eq!(report["mesh"]["vertices"], welded);

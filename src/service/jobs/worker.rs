@@ -132,6 +132,9 @@ fn execute(job: &Job, document: &Document, progress: &JobProgress) -> Result<Job
             e => Stop::Failed(e.into()),
         })?;
     output.report.mesh.file_vertices = document.vertex_map.as_ref().map(|m| m.len() as u64);
+    // The job keeps the parameters as asked; the report records the
+    // welding as done (a `null` request resolved to the format's default).
+    output.report.reproducibility.params.weld = Some(document.welded);
     let options = WriteOptions {
         results: job
             .params

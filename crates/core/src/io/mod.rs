@@ -215,6 +215,9 @@ pub struct Document {
     pub mesh: Mesh,
     /// Format the document was read from.
     pub format: Format,
+    /// Whether welding ran (asked for, or the format's default), whether or
+    /// not it joined anything.
+    pub welded: bool,
     /// When the file was welded: one entry per vertex of the file, its
     /// vertex in `mesh`.
     pub vertex_map: Option<Vec<u32>>,
@@ -411,6 +414,13 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
             let (mesh, src) = obj::read_obj(bytes, limits)?;
             (mesh, Source::Obj(src))
         }
+        Format::Glb if !gltf::is_glb(bytes) && !bytes.trim_ascii_start().starts_with(b"{") => {
+            return Err(IoError::GlbInvalid(
+                "the file does not start with the GLB magic `glTF` (and is not glTF JSON \
+                 either)"
+                    .to_owned(),
+            ));
+        }
         Format::Gltf | Format::Glb => {
             let (mesh, src) = gltf::read_gltf(bytes, limits)?;
             (mesh, Source::Gltf(src))
@@ -429,7 +439,8 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
         Source::Gltf(src) => Some(src.vertex_groups()),
         _ => None,
     };
-    let (mesh, vertex_map) = match options.weld.unwrap_or(weld_default) {
+    let welded = options.weld.unwrap_or(weld_default);
+    let (mesh, vertex_map) = match welded {
         true => match weld::weld(&mesh, options.weld_tolerance, groups.as_deref())? {
             Some(w) => (w.mesh, Some(w.vertex_map)),
             None => (mesh, None),
@@ -437,6 +448,7 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
         false => (mesh, None),
     };
     Ok(Document {
+        welded,
         mesh,
         format,
         vertex_map,
@@ -621,5 +633,32 @@ mod tests {
         assert_eq!(out, text);
         let e = write(&doc, &[DVec3::ZERO], Format::Obj).unwrap_err();
         assert_eq!(e.code(), "position_count_mismatch");
+    }
+
+    #[test]
+    fn a_glb_without_the_magic_says_so() {
+        for bytes in [&b""[..], b"\0\0\0\0", b"gltf\x02\0\0\0"] {
+            let e = read(bytes, Format::Glb, &ReadLimits::default()).unwrap_err();
+            assert_eq!(e.code(), "glb_invalid");
+            assert!(e.to_string().contains("magic"), "{e}");
+        }
+        // glTF JSON under a .glb name is still read as glTF.
+        let e = read(b"{}", Format::Glb, &ReadLimits::default()).unwrap_err();
+        assert_eq!(e.code(), "gltf_invalid");
+    }
+
+    #[test]
+    fn welding_is_recorded_as_done() {
+        let text = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+        assert!(
+            !read(text, Format::Obj, &ReadLimits::default())
+                .unwrap()
+                .welded
+        );
+        let options = ReadOptions {
+            weld: Some(true),
+            ..ReadOptions::default()
+        };
+        assert!(read_with(text, Format::Obj, &options).unwrap().welded);
     }
 }
