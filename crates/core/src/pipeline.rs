@@ -250,6 +250,10 @@ pub fn wang_yu(
     };
     let AdaptiveNeighbourhoods { hoods, ring } =
         adaptive_neighbourhoods(topo, &positions, &labels, &hk, &h_scaled, &normals, rule);
+    // Free what growth needed before the passes allocate theirs; the
+    // labelling curvature is the result only when no adaptive pass runs.
+    drop((h_scaled, normals));
+    let label_curvature = (params.adaptive_passes == 0).then_some(hk);
     timings_ms.push((Stage::Label, ms(t)));
     progress.update(Stage::Label, 1.0);
 
@@ -266,7 +270,7 @@ pub fn wang_yu(
         cancel,
         |p| progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64),
     )?;
-    let curvature = hk_last.unwrap_or(hk);
+    let curvature = hk_last.or(label_curvature).unwrap_or_default();
     let mut volume_offset = 0.0;
     let mut volume_not_restored = None;
     if params.preserve_volume && topo.num_boundary_edges() == 0 {

@@ -7,25 +7,12 @@ use crate::mesh::{Mesh, Topology, vector_area};
 use glam::DVec3;
 use rayon::prelude::*;
 
-/// Vector area of every face, one entry per face.
-pub fn face_vector_areas(mesh: &Mesh, positions: &[DVec3]) -> Vec<DVec3> {
-    (0..mesh.num_faces())
-        .into_par_iter()
-        .with_min_len(4096)
-        .map(|f| vector_area(mesh.face(f), positions))
-        .collect()
-}
-
 /// Unit area-weighted normal of every vertex, one entry per vertex;
 /// `DVec3::ZERO` where the incident faces have no area (isolated or fully
-/// degenerate vertices), which later steps treat as "do not move".
+/// degenerate vertices), which later steps treat as "do not move". Each
+/// face's vector area is recomputed at each of its corners (a few flops)
+/// rather than stored for all faces (24 bytes a face, at the run's peak).
 pub fn vertex_normals(mesh: &Mesh, topo: &Topology, positions: &[DVec3]) -> Vec<DVec3> {
-    let areas = face_vector_areas(mesh, positions);
-    vertex_normals_from_areas(topo, &areas)
-}
-
-/// Vertex normals from precomputed face vector areas.
-pub fn vertex_normals_from_areas(topo: &Topology, face_areas: &[DVec3]) -> Vec<DVec3> {
     (0..topo.num_vertices())
         .into_par_iter()
         .with_min_len(4096)
@@ -33,7 +20,7 @@ pub fn vertex_normals_from_areas(topo: &Topology, face_areas: &[DVec3]) -> Vec<D
             let s: DVec3 = topo
                 .vertex_faces(v)
                 .iter()
-                .map(|&f| face_areas[f as usize])
+                .map(|&f| vector_area(mesh.face(f as usize), positions))
                 .sum();
             s.normalize_or_zero()
         })
