@@ -401,7 +401,14 @@ pub fn run(
         let t = Instant::now();
         let _s = tracing::info_span!("quality").entered();
         progress.update(Stage::Quality, 0.0);
-        report.quality_fixes = Some(improve(mesh, &topo, &mut positions, input, &params.quality));
+        report.quality_fixes = Some(improve(
+            mesh,
+            &topo,
+            &mut positions,
+            input,
+            &params.quality,
+            params.min_normal_cos(),
+        ));
         timings.push((Stage::Quality, ms(t)));
         progress.update(Stage::Quality, 1.0);
     }

@@ -446,7 +446,14 @@ mod tests {
             QualityReport::new(mesh_statistics(&mesh, &topo), Reproducibility::new(&params));
         report.stages.input = Some(measure_stage(&mesh, &topo, input, input, None, 0.2));
         let mut p: Vec<_> = input.iter().map(|&q| q * 1.01).collect();
-        report.quality_fixes = Some(improve(&mesh, &topo, &mut p, input, &params.quality));
+        report.quality_fixes = Some(improve(
+            &mesh,
+            &topo,
+            &mut p,
+            input,
+            &params.quality,
+            params.min_normal_cos(),
+        ));
         report.stages.final_stage = Some(measure_stage(&mesh, &topo, &p, input, None, 0.2));
         report.timings.push(StageTiming {
             stage: "quality".into(),

@@ -527,7 +527,9 @@ pub(crate) fn ordered_link(mesh: &Mesh, topo: &Topology, v: usize, out: &mut Vec
 }
 
 /// The fitted surface around a vertex: its quadric (section 3) in the frame
-/// at its current position and normal, fitted to its 2-ring.
+/// at its current position and normal, fitted to its 2-ring less the
+/// neighbours facing away (cosine of their normal with the vertex's below
+/// `min_normal_cos`, as in the smoothing passes).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct LocalSurface {
     pub frame: Frame,
@@ -542,6 +544,7 @@ impl LocalSurface {
         v: usize,
         positions: &[DVec3],
         ring: &mut Vec<u32>,
+        min_normal_cos: f64,
     ) -> Option<LocalSurface> {
         let n = vertex_normal(mesh, topo, v, positions);
         if n == DVec3::ZERO {
@@ -549,6 +552,11 @@ impl LocalSurface {
         }
         let frame = Frame::new(positions[v], n);
         two_ring(topo, v, ring);
+        if min_normal_cos > -1.0 {
+            ring.retain(|&w| {
+                vertex_normal(mesh, topo, w as usize, positions).dot(n) >= min_normal_cos
+            });
+        }
         let fit = fit_quadric(&frame, positions, ring);
         Some(LocalSurface { frame, fit })
     }
@@ -808,11 +816,11 @@ mod tests {
         let mut link = Vec::new();
         let mut ring = Vec::new();
         assert!(ordered_link(&m, &t, v, &mut link));
-        let s = LocalSurface::at(&m, &t, v, m.positions(), &mut ring).unwrap();
+        let s = LocalSurface::at(&m, &t, v, m.positions(), &mut ring, 0.5).unwrap();
         let (x, y) = angle_based_target(&s, &link, m.positions()).unwrap();
         assert!(x.abs() < 1e-12 && y.abs() < 1e-12, "a regular vertex stays");
         m.positions_mut()[v] += DVec3::new(0.3, -0.2, 0.0);
-        let s = LocalSurface::at(&m, &t, v, m.positions(), &mut ring).unwrap();
+        let s = LocalSurface::at(&m, &t, v, m.positions(), &mut ring, 0.5).unwrap();
         let (x, y) = angle_based_target(&s, &link, m.positions()).unwrap();
         let target = s.point(x, y);
         let centre = DVec3::new(2.0, 2.0, 0.0);

@@ -45,20 +45,23 @@ pub struct QualityFixStats {
 /// Runs the three fixes on `positions` (one per vertex, moved in place)
 /// with `input` the input positions (one per vertex, the reference for
 /// inverted faces): twisted quads, then short edges, then sharp angles,
-/// each at most `params.max_sweeps` sweeps. Does nothing when
-/// `params.enabled` is false.
+/// each at most `params.max_sweeps` sweeps. Surface fits leave out
+/// neighbours facing away by a cosine below `min_normal_cos`
+/// ([`crate::Params::min_normal_cos`]). Does nothing when `params.enabled`
+/// is false.
 pub fn improve(
     mesh: &Mesh,
     topo: &Topology,
     positions: &mut [DVec3],
     input: &[DVec3],
     params: &QualityParams,
+    min_normal_cos: f64,
 ) -> QualityFixStats {
     if !params.enabled {
         return QualityFixStats::default();
     }
     let sweeps = params.max_sweeps;
-    let twisted = fix_twisted_quads(mesh, topo, positions, input, sweeps);
+    let twisted = fix_twisted_quads(mesh, topo, positions, input, sweeps, min_normal_cos);
     let short_edges = fix_short_edges(
         mesh,
         topo,
@@ -66,9 +69,17 @@ pub fn improve(
         input,
         params.short_edge_fraction,
         sweeps,
+        min_normal_cos,
     );
-    let sharp_angles =
-        fix_sharp_angles(mesh, topo, positions, input, params.sharp_angle_deg, sweeps);
+    let sharp_angles = fix_sharp_angles(
+        mesh,
+        topo,
+        positions,
+        input,
+        params.sharp_angle_deg,
+        sweeps,
+        min_normal_cos,
+    );
     QualityFixStats {
         twisted,
         short_edges,

@@ -74,6 +74,8 @@ pub struct SharpAngleStats {
 /// Scratch buffers for relocating vertices.
 #[derive(Debug, Default)]
 pub(crate) struct Relocator {
+    /// [`LocalSurface::at`]'s facing rule.
+    pub min_normal_cos: f64,
     ring: Vec<u32>,
     link: Vec<u32>,
     targets: Vec<(f64, f64)>,
@@ -105,6 +107,15 @@ pub(crate) enum Visit {
 }
 
 impl Relocator {
+    /// A relocator whose surface fits leave out neighbours facing away by
+    /// a cosine below `min_normal_cos`.
+    pub fn new(min_normal_cos: f64) -> Relocator {
+        Relocator {
+            min_normal_cos,
+            ..Relocator::default()
+        }
+    }
+
     /// The best of interior vertex `v`'s candidate positions if that
     /// improves its faces (`positions` is not changed). A face needs work
     /// when it is inverted, twisted, or its smallest split-triangle angle
@@ -132,7 +143,15 @@ impl Relocator {
         if !self.tester.needs_work() || !ordered_link(mesh, topo, v, &mut self.link) {
             return Visit::Skipped;
         }
-        let Some(surface) = LocalSurface::at(mesh, topo, v, positions, &mut self.ring) else {
+        let surface = LocalSurface::at(
+            mesh,
+            topo,
+            v,
+            positions,
+            &mut self.ring,
+            self.min_normal_cos,
+        );
+        let Some(surface) = surface else {
             return Visit::Skipped;
         };
         let mut targets = std::mem::take(&mut self.targets);
@@ -245,6 +264,7 @@ pub fn fix_sharp_angles(
     input: &[DVec3],
     sharp_angle_deg: f64,
     max_sweeps: u32,
+    min_normal_cos: f64,
 ) -> SharpAngleStats {
     let cos_limit = sharp_angle_deg.to_radians().cos();
     let p: &[DVec3] = positions;
@@ -283,12 +303,15 @@ pub fn fix_sharp_angles(
             let results: Vec<Visit> = class
                 .par_iter()
                 .with_min_len(64)
-                .map_init(Relocator::default, |r, &v| {
-                    let thorough = previously_stuck.binary_search(&v).is_ok();
-                    r.relocate(
-                        mesh, topo, v as usize, p, input, cos_limit, cos_floor, thorough,
-                    )
-                })
+                .map_init(
+                    || Relocator::new(min_normal_cos),
+                    |r, &v| {
+                        let thorough = previously_stuck.binary_search(&v).is_ok();
+                        r.relocate(
+                            mesh, topo, v as usize, p, input, cos_limit, cos_floor, thorough,
+                        )
+                    },
+                )
                 .collect();
             for (&v, visit) in class.iter().zip(results) {
                 match visit {
@@ -449,7 +472,7 @@ mod tests {
         // Vertex (2,2) dragged next to (3,2): slivers all around it.
         p[at(5, 2, 2)] = DVec3::new(2.9, 2.05, 0.0);
         assert!(min_split_angle(&m, &p, None) < 5.0);
-        let stats = fix_sharp_angles(&m, &t, &mut p, &input, 20.0, 10);
+        let stats = fix_sharp_angles(&m, &t, &mut p, &input, 20.0, 10, 0.5);
         assert!(stats.faces_found > 0 && stats.moves > 0);
         assert_eq!(stats.faces_remaining, 0);
         assert!(min_split_angle(&m, &p, None) >= 20.0 - 1e-9);
@@ -476,7 +499,7 @@ mod tests {
         assert!(worst_before < 10.0, "risers are slivers: {worst_before}");
         let all_before = min_split_angle(&m, &flat, None);
         let mut p = flat.clone();
-        fix_sharp_angles(&m, &t, &mut p, input, 20.0, 20);
+        fix_sharp_angles(&m, &t, &mut p, input, 20.0, 20, 0.5);
         let worst_after = min_split_angle(&m, &p, Some(&inner));
         assert!(worst_after > 15.0, "inner faces now {worst_after}");
         assert!(min_split_angle(&m, &p, None) >= all_before);
@@ -496,8 +519,8 @@ mod tests {
         let before = measure_stage(&m, &t, &projected, input, None, 0.2);
         assert!(before.triangle_angles.below_15 > 0 && before.inverted_faces > 0);
         let mut p = projected.clone();
-        fix_twisted_quads(&m, &t, &mut p, input, 10);
-        let stats = fix_sharp_angles(&m, &t, &mut p, input, 20.0, 10);
+        fix_twisted_quads(&m, &t, &mut p, input, 10, 0.5);
+        let stats = fix_sharp_angles(&m, &t, &mut p, input, 20.0, 10, 0.5);
         assert_eq!(stats.faces_remaining, 0, "{stats:?}");
         let after = measure_stage(&m, &t, &p, input, None, 0.2);
         assert_eq!(after.triangle_angles.below_15, 0);
@@ -527,7 +550,7 @@ mod tests {
                 .unwrap()
                 .install(|| {
                     let mut p = projected.clone();
-                    let s = fix_sharp_angles(&m, &t, &mut p, m.positions(), 25.0, 10);
+                    let s = fix_sharp_angles(&m, &t, &mut p, m.positions(), 25.0, 10, 0.5);
                     (p, s)
                 })
         };

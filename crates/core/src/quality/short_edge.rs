@@ -76,6 +76,7 @@ pub fn fix_short_edges(
     input: &[DVec3],
     fraction: f64,
     max_sweeps: u32,
+    min_normal_cos: f64,
 ) -> ShortEdgeStats {
     let threshold = fraction * mean_side_length(mesh, positions);
     let mut short = short_edges(topo, positions, threshold);
@@ -84,7 +85,10 @@ pub fn fix_short_edges(
         found: short.len() as u64,
         ..ShortEdgeStats::default()
     };
-    let mut fixer = Fixer::default();
+    let mut fixer = Fixer {
+        min_normal_cos,
+        ..Fixer::default()
+    };
     while !short.is_empty() && stats.sweeps < max_sweeps as u64 {
         stats.sweeps += 1;
         let mut changed = false;
@@ -115,6 +119,8 @@ pub fn fix_short_edges(
 
 #[derive(Debug, Default)]
 struct Fixer {
+    /// [`LocalSurface::at`]'s facing rule.
+    min_normal_cos: f64,
     ring: Vec<u32>,
     link: Vec<u32>,
     tester: MoveTester,
@@ -182,7 +188,14 @@ impl Fixer {
         if !ordered_link(mesh, topo, v, &mut self.link) {
             return None;
         }
-        let surface = LocalSurface::at(mesh, topo, v, positions, &mut self.ring)?;
+        let surface = LocalSurface::at(
+            mesh,
+            topo,
+            v,
+            positions,
+            &mut self.ring,
+            self.min_normal_cos,
+        )?;
         let m = self.link.len();
         let i = self.link.iter().position(|&x| x as usize == w)?;
         // Going counter-clockwise the link runs d .. w .. c, where d and c
@@ -258,7 +271,7 @@ mod tests {
         p[a] = DVec3::new(2.46, 3.0, 0.0);
         p[b] = DVec3::new(2.54, 3.0, 0.0);
         let angle_before = min_split_angle(&m, &p, None);
-        let stats = fix_short_edges(&m, &t, &mut p, &input, 0.2, 10);
+        let stats = fix_short_edges(&m, &t, &mut p, &input, 0.2, 10, 0.5);
         assert_eq!(stats.found, 1);
         assert_eq!(stats.lengthened, 1);
         assert_eq!(stats.remaining, 0);
@@ -274,7 +287,10 @@ mod tests {
     fn the_far_point_follows_the_bisector_away_from_the_partner() {
         let m = grid(4);
         let t = Topology::build(&m);
-        let mut f = Fixer::default();
+        let mut f = Fixer {
+            min_normal_cos: 0.5,
+            ..Fixer::default()
+        };
         let (a, b) = (at(4, 2, 2), at(4, 3, 2));
         let (p1, _) = f.far_point(&m, &t, a, b, m.positions()).unwrap();
         // The other sides at (2,2) in the two faces on the edge run to (2,1)

@@ -68,6 +68,7 @@ pub fn fix_twisted_quads(
     positions: &mut [DVec3],
     input: &[DVec3],
     max_sweeps: u32,
+    min_normal_cos: f64,
 ) -> TwistedStats {
     let mut twisted = twisted_quads(mesh, positions);
     let mut stats = TwistedStats {
@@ -75,7 +76,7 @@ pub fn fix_twisted_quads(
         ..TwistedStats::default()
     };
     let mut tester = MoveTester::default();
-    let mut relocator = Relocator::default();
+    let mut relocator = Relocator::new(min_normal_cos);
     while !twisted.is_empty() && stats.sweeps < max_sweeps as u64 {
         stats.sweeps += 1;
         let mut changed = false;
@@ -192,7 +193,7 @@ mod tests {
         p.swap(a, b);
         let before = measure_stage(&m, &t, &p, &input, None, 0.2);
         assert!(before.twisted_quads >= 2, "the fixture has a twisted pair");
-        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10);
+        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10, 0.5);
         assert_eq!(stats.found, before.twisted_quads);
         assert!(stats.swaps >= 1);
         assert_eq!(stats.remaining, 0);
@@ -213,7 +214,7 @@ mod tests {
         p[v] = DVec3::new(0.8, 1.5, 0.1);
         let before = measure_stage(&m, &t, &p, &input, None, 0.2);
         assert!(before.twisted_quads >= 1);
-        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10);
+        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10, 0.5);
         assert_eq!(stats.remaining, 0, "{stats:?}");
         let after = measure_stage(&m, &t, &p, &input, None, 0.2);
         assert_eq!(after.twisted_quads, 0);
@@ -229,7 +230,7 @@ mod tests {
         let mut p = input.clone();
         p.swap(at(2, 0, 0), at(2, 1, 0)); // both on the boundary
         let moved = p.clone();
-        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10);
+        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10, 0.5);
         assert!(stats.found >= 1);
         for v in 0..p.len() {
             if t.kind(v) != VertexKind::Interior {
