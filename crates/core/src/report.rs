@@ -319,8 +319,10 @@ pub struct WangYuSummary {
     pub initial_fits: FitCounts,
     /// Fits of the adaptive passes.
     pub adaptive_fits: FitCounts,
-    /// Offset along the vertex normals that restored the input volume, in
-    /// mesh units (0 when not applied).
+    /// Offset along the vertex normals that restored the input volume after
+    /// adaptive smoothing, plus the small one (at most a tenth of an edge)
+    /// that restores it again after the quality fixes, in mesh units (0 when
+    /// not applied).
     pub volume_offset: f64,
 }
 
