@@ -160,8 +160,16 @@ async fn request_ids_are_set_propagated_and_tied_to_jobs() {
         .await;
     assert_eq!(r.status, StatusCode::OK);
     assert_eq!(r.header("x-request-id"), Some("pipeline-run-42"));
-    // JSON logs: every line is an object; the job's lines carry the id.
-    let logs = server.logs();
+    // JSON logs: every line is an object; the job's lines carry the id. The
+    // worker logs success just after the response is sent: wait for it.
+    let mut logs = server.logs();
+    for _ in 0..50 {
+        if logs.contains("job succeeded") {
+            break;
+        }
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
+        logs = server.logs();
+    }
     let lines: Vec<Value> = logs
         .lines()
         .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))

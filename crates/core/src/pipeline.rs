@@ -277,7 +277,15 @@ pub fn wang_yu(
         let target = mesh.signed_volume();
         // More than half an edge length is no smoothing bias to undo.
         let max_offset = 0.5 * mean_edge_length(mesh, &positions);
-        volume_offset = restore_volume(mesh, topo, &mut positions, movable, target, max_offset);
+        volume_offset = restore_volume(
+            mesh,
+            topo,
+            &mut positions,
+            movable,
+            target,
+            max_offset,
+            |_| true,
+        );
         let change = (signed_volume(mesh, &positions) - target) / target.abs();
         if volume_offset == 0.0 && change.abs() > 1e-6 {
             volume_not_restored = Some(change);
@@ -417,16 +425,18 @@ pub fn run(
             && topo.num_boundary_edges() == 0
             && summary.volume_offset != 0.0
         {
-            let fixed = positions.clone();
             let defects = defect_count(mesh, &positions, input);
             let max_offset = 0.1 * mean_edge_length(mesh, &positions);
             let target = mesh.signed_volume();
-            let offset = restore_volume(mesh, &topo, &mut positions, &movable, target, max_offset);
-            if defect_count(mesh, &positions, input) > defects {
-                positions = fixed;
-            } else {
-                summary.volume_offset += offset;
-            }
+            summary.volume_offset += restore_volume(
+                mesh,
+                &topo,
+                &mut positions,
+                &movable,
+                target,
+                max_offset,
+                |moved| defect_count(mesh, moved, input) <= defects,
+            );
         }
         timings.push((Stage::Quality, ms(t)));
         progress.update(Stage::Quality, 1.0);
