@@ -352,6 +352,8 @@ pub fn run(
     progress.update(Stage::Analyse, 1.0);
     check(cancel)?;
 
+    // Set when the adaptive stage already reported an unrestored volume.
+    let mut volume_warned = false;
     let (mut positions, curvature, labels) = match params.method {
         Method::WangYu => {
             let r = {
@@ -376,9 +378,10 @@ pub fn run(
                 volume_offset: r.volume_offset,
             });
             if let Some(change) = r.volume_not_restored {
+                volume_warned = true;
                 report.warnings.push(format!(
-                    "the enclosed volume changed by {:+.2}% and could not be restored: the \
-                     uniform offset it needs is more than half an edge length (the mesh may be \
+                    "the enclosed volume changed by {:+.2}% and could not be restored: a \
+                     uniform offset of at most half an edge length does not bring it back (the mesh may be \
                      too coarse or too thin for quadric fitting, or the volume restoration \
                      cannot undo a collapse)",
                     100.0 * change
@@ -465,7 +468,7 @@ pub fn run(
         && params.method == Method::WangYu
         && params.preserve_volume
         && change.abs() > 0.005
-        && !report.warnings.iter().any(|w| w.contains("volume"))
+        && !volume_warned
     {
         report.warnings.push(format!(
             "the enclosed volume ends {:+.2}% from the input's: restoring it after the quality \
