@@ -3,7 +3,7 @@
 //! (or the file's value), so no default is restated here.
 
 use meshsmooth_core::Params;
-use meshsmooth_core::params::{BoundaryRule, Method};
+use meshsmooth_core::params::{AdaptiveFit, BoundaryRule, Method};
 use serde::de::DeserializeOwned;
 
 /// Parameter flags of `meshsmooth smooth`; `None` keeps the value from the
@@ -20,10 +20,14 @@ pub struct ParamFlags {
     /// Adaptive smoothing passes [params: adaptive_passes].
     #[arg(long, value_name = "N")]
     adaptive_passes: Option<u32>,
+    /// Surface model of the adaptive fits: `cubic` (quadric plus cubic
+    /// terms) or the paper's `quadric` [params: adaptive_fit].
+    #[arg(long, value_name = "MODEL", value_parser = serde_name::<AdaptiveFit>)]
+    adaptive_fit: Option<AdaptiveFit>,
     /// Largest ring an adaptive neighbourhood may grow to [params: k_max].
     #[arg(long, value_name = "K")]
     k_max: Option<u32>,
-    /// Most points used in one quadric fit [params: max_fit_points].
+    /// Most points used in one fit [params: max_fit_points].
     #[arg(long, value_name = "N")]
     max_fit_points: Option<u32>,
     /// Flatness tolerance on |H| times the mean edge length
@@ -114,6 +118,7 @@ impl ParamFlags {
         set(&mut p.method, self.method);
         set(&mut p.initial_passes, self.initial_passes);
         set(&mut p.adaptive_passes, self.adaptive_passes);
+        set(&mut p.adaptive_fit, self.adaptive_fit);
         set(&mut p.k_max, self.k_max);
         set(&mut p.max_fit_points, self.max_fit_points);
         set(&mut p.tolerance_h, self.tolerance_h);
@@ -150,9 +155,11 @@ mod tests {
             method: Some(Method::Taubin),
             mu: Some(-0.6),
             no_quality: true,
+            adaptive_fit: Some(AdaptiveFit::Quadric),
             ..ParamFlags::default()
         };
         flags.apply(&mut p);
+        assert_eq!(p.adaptive_fit, AdaptiveFit::Quadric);
         assert_eq!(p.method, Method::Taubin);
         assert_eq!(p.baseline.mu, -0.6);
         assert!(!p.quality.enabled);

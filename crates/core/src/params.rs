@@ -23,6 +23,22 @@ pub enum Method {
     Laplacian,
 }
 
+/// The surface model of the adaptive passes' fits (section 3; the paper
+/// fits a quadric).
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum AdaptiveFit {
+    /// The quadric plus the four cubic terms (default): where the curvature
+    /// changes across a neighbourhood, the cubic terms take up what a
+    /// quadric would turn into a height bias at every pass. Falls back to
+    /// the quadric below 14 fitted points.
+    #[default]
+    Cubic,
+    /// The paper's quadric.
+    Quadric,
+}
+
 /// What happens at boundary vertices (edges with a single face). Section 0
 /// of the algorithm notes leaves this open.
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
@@ -48,17 +64,21 @@ pub struct Params {
     /// Passes of initial smoothing with fixed 2-ring fits (section 2.2).
     /// Default 3; range 0..=100.
     pub initial_passes: u32,
-    /// Passes of adaptive smoothing (section 2.3). Default 8; range 0..=200.
-    /// (Measured on the voxel test shapes: 3 + 8 is as good as or better
-    /// than 2 + 10 on all four and costs less; more adaptive passes help
-    /// spheres but bias the ellipsoid's tips outward.)
+    /// Passes of adaptive smoothing (section 2.3). Default 22; range 0..=200.
+    /// (Measured on the voxel test shapes with cubic fits: the sphere r=40
+    /// needs 20-24 passes to damp its long staircase waves, beyond 22 the
+    /// ellipsoid starts to drift; with quadric fits the drift starts after
+    /// about 8.)
     pub adaptive_passes: u32,
+    /// Surface model of the adaptive fits. Default `cubic`.
+    pub adaptive_fit: AdaptiveFit,
     /// Largest ring `k` an adaptive neighbourhood may grow to (section 2.3).
     /// Default 16; range 2..=32.
     pub k_max: u32,
     /// Most neighbours used in one fit: larger rings are thinned to this many
     /// well-spread points, so a fit's cost does not grow with `k`.
-    /// Default 40; range 6..=512.
+    /// Default 56 (the neighbour lists are the run's largest arrays: 56
+    /// keeps the peak at 500 bytes a vertex); range 6..=512.
     pub max_fit_points: u32,
     /// Ring of the fits that estimate the curvature used for labelling and
     /// ring growth, after initial smoothing (open in the paper: a wider fit
@@ -134,9 +154,10 @@ impl Default for Params {
         Params {
             method: Method::WangYu,
             initial_passes: 3,
-            adaptive_passes: 8,
+            adaptive_passes: 22,
+            adaptive_fit: AdaptiveFit::Cubic,
             k_max: 16,
-            max_fit_points: 40,
+            max_fit_points: 56,
             curvature_ring: 6,
             tolerance_h: 0.04,
             tolerance_k: 0.002,
@@ -356,9 +377,10 @@ mod tests {
         let p = Params::default();
         assert_eq!(p.method, Method::WangYu);
         assert_eq!(p.initial_passes, 3);
-        assert_eq!(p.adaptive_passes, 8);
+        assert_eq!(p.adaptive_passes, 22);
+        assert_eq!(p.adaptive_fit, AdaptiveFit::Cubic);
         assert_eq!(p.k_max, 16);
-        assert_eq!(p.max_fit_points, 40);
+        assert_eq!(p.max_fit_points, 56);
         assert_eq!(p.curvature_ring, 6);
         assert_eq!(p.tolerance_h, 0.04);
         assert_eq!(p.tolerance_k, 0.002);
@@ -416,6 +438,16 @@ mod tests {
         assert_eq!(p.method, Method::Taubin);
         assert!(!p.quality.enabled);
         assert_eq!(p.k_max, Params::default().k_max);
+    }
+
+    #[test]
+    fn adaptive_fit_is_cubic_or_quadric() {
+        let p: Params = serde_json::from_str(r#"{"adaptive_fit": "quadric"}"#).unwrap();
+        assert_eq!(p.adaptive_fit, AdaptiveFit::Quadric);
+        let p: Params = serde_json::from_str(r#"{"adaptive_fit": "cubic"}"#).unwrap();
+        assert_eq!(p.adaptive_fit, AdaptiveFit::Cubic);
+        let e = serde_json::from_str::<Params>(r#"{"adaptive_fit": "quartic"}"#).unwrap_err();
+        assert!(e.to_string().contains("quartic"), "{e}");
     }
 
     #[test]

@@ -2,21 +2,22 @@
 //! one entry point shared by the CLI and the service.
 
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length, signed_volume};
-use crate::params::{BoundaryRule, Method, ParamError, Params};
+use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
 use crate::quality::{defect_count, improve, measure_stage, mesh_statistics};
 use crate::report::{
     LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
 };
 use crate::report::{QualityReport, StageMeasures};
 use crate::smoothing::adaptive::{
-    AdaptiveNeighbourhoods, BEAM_WIDTH, GrowthRule, adaptive_neighbourhoods,
+    AdaptiveNeighbourhoods, BEAM_WIDTH, GrowthRule, adaptive_neighbourhoods, agreement_masks,
 };
-use crate::smoothing::curvature::vertex_curvatures;
+use crate::smoothing::curvature::{curvature_at, vertex_curvatures};
 use crate::smoothing::initial::smooth_passes;
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::neighbourhood::{Neighbourhoods, push_thinned};
-use crate::smoothing::normals::vertex_normals;
+use crate::smoothing::normals::vertex_normals_f32;
 use crate::smoothing::project::{Curvatures, FitStats};
+use crate::smoothing::quadric_fit::FitModel;
 use crate::smoothing::volume::restore_volume;
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::DVec3;
@@ -196,6 +197,7 @@ pub fn wang_yu(
         &mut positions,
         &two_ring,
         movable,
+        FitModel::Quadric,
         min_cos,
         passes,
         cancel,
@@ -216,26 +218,32 @@ pub fn wang_yu(
 
     let t = Instant::now();
     check(cancel)?;
-    let curvature_hoods = Neighbourhoods::build(topo, |v, w, out| {
-        w.start(topo, v);
-        for r in 0..params.curvature_ring {
-            let beam = if r < 2 { usize::MAX } else { BEAM_WIDTH };
-            if w.grow_beam(topo, beam).is_empty() {
-                w.discard_last();
-                break;
+    // The curvature rings are used once: walked and fitted vertex by
+    // vertex, never stored (as lists they would be the run's peak memory).
+    let facing_normals = vertex_normals_f32(mesh, topo, &positions);
+    let hk = Neighbourhoods::map(
+        topo,
+        |v, w, out| {
+            w.start(topo, v);
+            for r in 0..params.curvature_ring {
+                let beam = if r < 2 { usize::MAX } else { BEAM_WIDTH };
+                if w.grow_beam(topo, beam).is_empty() {
+                    w.discard_last();
+                    break;
+                }
             }
-        }
-        push_thinned(w, max_points, out);
-    });
-    let hk = vertex_curvatures(mesh, topo, &positions, &curvature_hoods, min_cos).0;
-    drop(curvature_hoods);
+            push_thinned(w, max_points, max_points / 2, out);
+        },
+        |v, hood| curvature_at(topo, &positions, &facing_normals, v, hood, min_cos),
+    );
+
     let l = mean_edge_length(mesh, &positions);
     let labels: Vec<Label> = hk
         .iter()
         .map(|&(h, k)| label(h, k, l, params.tolerance_h, params.tolerance_k))
         .collect();
-    let h_scaled: Vec<f64> = hk.iter().map(|&(h, _)| h * l).collect();
-    let normals = vertex_normals(mesh, topo, &positions);
+    // Single precision: growth compares spreads of about 0.005.
+    let h_scaled: Vec<f32> = hk.iter().map(|&(h, _)| (h * l) as f32).collect();
     let rule = GrowthRule {
         k_max: params.k_max,
         max_points,
@@ -248,12 +256,21 @@ pub fn wang_yu(
         label_margin: params.label_margin,
         label_disagreement: params.label_disagreement,
     };
-    let AdaptiveNeighbourhoods { hoods, ring } =
-        adaptive_neighbourhoods(topo, &positions, &labels, &hk, &h_scaled, &normals, rule);
-    // Free what growth needed before the passes allocate theirs; the
-    // labelling curvature is the result only when no adaptive pass runs.
-    drop((h_scaled, normals));
+    let agreement = agreement_masks(&hk, &rule);
+    // The labelling curvature is the result only when no adaptive pass
+    // runs; otherwise it goes before growth allocates the neighbourhoods.
     let label_curvature = (params.adaptive_passes == 0).then_some(hk);
+    let AdaptiveNeighbourhoods { hoods, ring } = adaptive_neighbourhoods(
+        topo,
+        &positions,
+        &labels,
+        &agreement,
+        &h_scaled,
+        &facing_normals,
+        rule,
+    );
+    // Free what growth needed before the passes allocate theirs.
+    drop((h_scaled, facing_normals, agreement));
     timings_ms.push((Stage::Label, ms(t)));
     progress.update(Stage::Label, 1.0);
 
@@ -265,6 +282,10 @@ pub fn wang_yu(
         &mut positions,
         &hoods,
         movable,
+        match params.adaptive_fit {
+            AdaptiveFit::Cubic => FitModel::Cubic,
+            AdaptiveFit::Quadric => FitModel::Quadric,
+        },
         min_cos,
         passes,
         cancel,

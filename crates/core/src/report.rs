@@ -16,7 +16,7 @@ use sha2::{Digest, Sha256};
 /// Version of the report's JSON schema: the major number changes when a
 /// field is removed or changes meaning, the minor number when fields are
 /// added.
-pub const SCHEMA_VERSION: &str = "1.1";
+pub const SCHEMA_VERSION: &str = "1.2";
 
 /// Width of one angle-histogram bin, in degrees.
 pub const ANGLE_BIN_DEG: f64 = 5.0;
@@ -276,10 +276,14 @@ impl LabelCounts {
     }
 }
 
-/// How the quadric fits of a stage ended (section 3 fallbacks).
+/// How the fits of a stage ended (section 3 fallbacks).
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct FitCounts {
+    /// Fits that used the quadric plus cubic terms (adaptive passes with
+    /// `adaptive_fit: cubic`), summed over passes.
+    #[serde(default)]
+    pub cubic: u64,
     /// Fits that used the full quadric, summed over passes.
     pub quadric: u64,
     /// Fits that fell back to a plane.
@@ -296,6 +300,7 @@ pub struct FitCounts {
 impl From<FitStats> for FitCounts {
     fn from(s: FitStats) -> Self {
         FitCounts {
+            cubic: s.cubic,
             quadric: s.quadric,
             plane: s.plane_fallback,
             fixed: s.fixed_fallback,

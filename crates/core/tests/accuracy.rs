@@ -66,11 +66,10 @@ fn voxel_torus_beats_baselines_by_a_quarter() {
 }
 
 #[test]
-fn voxel_ellipsoid_beats_best_baseline() {
+fn voxel_ellipsoid_beats_baselines_by_a_quarter() {
     let (e, m) = shapes::voxel_ellipsoid(30.0, 20.0, 12.0);
-    // Best baseline 0.055 voxel. The target, 0.041, is not reached
-    // yet (see the benchmark output); this pins what is.
-    check("voxel ellipsoid", &e, &m, 0.055);
+    // Best baseline 0.055 voxel; target 0.75 x 0.055.
+    check("voxel ellipsoid", &e, &m, 0.041);
 }
 
 #[test]

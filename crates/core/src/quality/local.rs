@@ -567,7 +567,7 @@ impl LocalSurface {
     pub fn point(&self, x: f64, y: f64) -> DVec3 {
         let z = match self.fit.kind {
             FitKind::Fixed => 0.0,
-            FitKind::Quadric | FitKind::Plane => {
+            FitKind::Cubic | FitKind::Quadric | FitKind::Plane => {
                 let [a, b, c, e, f, g] = self.fit.coeffs;
                 a * x * x + b * x * y + c * y * y + e * x + f * y + g
             }

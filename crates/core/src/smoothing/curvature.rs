@@ -3,12 +3,14 @@
 //! [`QuadricFit::curvature`](super::quadric_fit::QuadricFit::curvature);
 //! this file estimates them for a whole mesh without moving it.
 
+use super::frame::Frame;
 use super::neighbourhood::Neighbourhoods;
 use super::project::{Curvatures, FitStats, fit_pass};
-use crate::mesh::{Mesh, Topology};
-use glam::DVec3;
+use super::quadric_fit::{Facing, FitModel, fit_neighbours};
+use crate::mesh::{Mesh, Topology, VertexKind};
+use glam::{DVec3, Vec3};
 
-/// `(H, K)` at every vertex from a fit to its neighbourhood in `positions`
+/// `(H, K)` at every vertex from a quadric fit to its neighbourhood in `positions`
 /// (0 where the vertex has no usable normal or is not fitted); neighbours
 /// facing away by a cosine below `min_cos` are left out.
 pub fn vertex_curvatures(
@@ -28,11 +30,39 @@ pub fn vertex_curvatures(
         positions,
         hoods,
         &all,
+        FitModel::Quadric,
         min_cos,
         &mut scratch,
         &mut hk,
     );
     (hk, stats)
+}
+
+/// `(H, K)` at vertex `v` from a quadric fit to `hood` in `positions`,
+/// exactly as [`vertex_curvatures`] computes it: 0 where the vertex has no
+/// normal, and 0 at boundary vertices (they fit a plane). `normals` are the
+/// unit vertex normals of `positions`
+/// ([`vertex_normals_f32`](super::normals::vertex_normals_f32)).
+pub fn curvature_at(
+    topo: &Topology,
+    positions: &[DVec3],
+    normals: &[Vec3],
+    v: usize,
+    hood: &[u32],
+    min_cos: f64,
+) -> (f64, f64) {
+    let n = normals[v].as_dvec3().normalize_or_zero();
+    if n == DVec3::ZERO {
+        return (0.0, 0.0);
+    }
+    let model = if topo.kind(v) == VertexKind::Boundary {
+        FitModel::Plane
+    } else {
+        FitModel::Quadric
+    };
+    let facing = Facing { normals, min_cos };
+    let frame = Frame::new(positions[v], n);
+    fit_neighbours(&frame, positions, hood, model, Some(facing)).curvature()
 }
 
 /// Face curvature: the mean of its vertices' `H` (one entry per face).

@@ -3,6 +3,7 @@
 
 use super::neighbourhood::Neighbourhoods;
 use super::project::{Curvatures, FitStats, fit_pass};
+use super::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
 use crate::pipeline::{Cancelled, check};
 use glam::DVec3;
@@ -11,7 +12,7 @@ use std::sync::atomic::AtomicBool;
 /// Runs `passes` passes over `hoods` starting from `positions` (updated in
 /// place). Returns the summed fit statistics and the curvature of the last
 /// pass's fits (before its projection), or `None` when `passes == 0`.
-/// `min_cos` is [`fit_pass`]'s.
+/// `model` and `min_cos` are [`fit_pass`]'s.
 #[allow(clippy::too_many_arguments)]
 pub fn smooth_passes(
     mesh: &Mesh,
@@ -19,6 +20,7 @@ pub fn smooth_passes(
     positions: &mut Vec<DVec3>,
     hoods: &Neighbourhoods,
     movable: &[bool],
+    model: FitModel,
     min_cos: f64,
     passes: u32,
     cancel: &AtomicBool,
@@ -31,7 +33,7 @@ pub fn smooth_passes(
     for pass in 0..passes {
         check(cancel)?;
         let s = fit_pass(
-            mesh, topo, positions, hoods, movable, min_cos, &mut next, &mut hk,
+            mesh, topo, positions, hoods, movable, model, min_cos, &mut next, &mut hk,
         );
         stats.accumulate(s);
         std::mem::swap(positions, &mut next);

@@ -20,6 +20,7 @@ pub struct Neighbourhoods {
 
 thread_local! {
     static WALKER: RefCell<RingWalker> = RefCell::new(RingWalker::default());
+    static LIST: RefCell<Vec<u32>> = const { RefCell::new(Vec::new()) };
 }
 
 /// Vertices per parallel work item when building neighbourhoods.
@@ -68,15 +69,19 @@ impl Neighbourhoods {
             .map(|c| {
                 let range = c * CHUNK..((c + 1) * CHUNK).min(n);
                 let mut starts = Vec::with_capacity(range.len());
-                let mut out = Vec::with_capacity(range.len() * 16);
-                WALKER.with(|w| {
-                    let mut w = w.borrow_mut();
-                    for v in range {
-                        starts.push(out.len() as u32);
-                        select(v, &mut w, &mut out);
-                    }
+                // Built in a reused thread-local list and copied out at its
+                // exact size: no growing and shrinking of a list per chunk.
+                let out = WALKER.with(|w| {
+                    LIST.with(|out| {
+                        let (mut w, mut out) = (w.borrow_mut(), out.borrow_mut());
+                        out.clear();
+                        for v in range {
+                            starts.push(out.len() as u32);
+                            select(v, &mut w, &mut out);
+                        }
+                        out.to_vec()
+                    })
                 });
-                out.shrink_to_fit();
                 (starts, out)
             })
             .collect();
@@ -90,6 +95,32 @@ impl Neighbourhoods {
         Neighbourhoods { offsets, chunks }
     }
 
+    /// `f(v, neighbours)` for every vertex, with the neighbours chosen by
+    /// `select` as in [`Neighbourhoods::build`] but never stored: for
+    /// neighbourhoods used once, at the cost of one thread-local list.
+    /// Runs in parallel; the result does not depend on the thread count.
+    pub fn map<T, S, F>(topo: &Topology, select: S, f: F) -> Vec<T>
+    where
+        T: Send,
+        S: Fn(usize, &mut RingWalker, &mut Vec<u32>) + Sync,
+        F: Fn(usize, &[u32]) -> T + Sync,
+    {
+        (0..topo.num_vertices())
+            .into_par_iter()
+            .with_min_len(CHUNK)
+            .map(|v| {
+                WALKER.with(|w| {
+                    LIST.with(|out| {
+                        let mut out = out.borrow_mut();
+                        out.clear();
+                        select(v, &mut w.borrow_mut(), &mut out);
+                        f(v, &out)
+                    })
+                })
+            })
+            .collect()
+    }
+
     /// The 2-ring of every vertex, thinned to at most `max_points` (ring 1
     /// kept whole when it fits).
     pub fn two_ring(topo: &Topology, max_points: usize) -> Neighbourhoods {
@@ -97,16 +128,17 @@ impl Neighbourhoods {
             w.start(topo, v);
             w.grow(topo);
             w.grow(topo);
-            push_thinned(w, max_points, out);
+            push_thinned(w, max_points, max_points / 2, out);
         })
     }
 }
 
 /// Appends the walker's rings to `out`, at most `max_points` of them: inner
-/// rings are kept whole while they fit, and the remaining budget is shared
-/// among the outer rings in proportion to their sizes, each thinned by an
-/// even stride so the points stay spread around the vertex.
-pub fn push_thinned(w: &RingWalker, max_points: usize, out: &mut Vec<u32>) {
+/// rings are kept whole while they total at most `whole_inner` points, and
+/// the remaining budget is shared among the outer rings in proportion to
+/// their sizes, each thinned by an even stride so the points stay spread
+/// around the vertex.
+pub fn push_thinned(w: &RingWalker, max_points: usize, whole_inner: usize, out: &mut Vec<u32>) {
     let all = w.found();
     if all.len() <= max_points {
         out.extend_from_slice(all);
@@ -115,7 +147,7 @@ pub fn push_thinned(w: &RingWalker, max_points: usize, out: &mut Vec<u32>) {
     // Keep whole rings from the inside while they fit.
     let mut kept_rings = 0;
     let mut kept = 0;
-    while kept_rings < w.rings() && kept + w.ring(kept_rings + 1).len() <= max_points / 2 {
+    while kept_rings < w.rings() && kept + w.ring(kept_rings + 1).len() <= whole_inner {
         kept += w.ring(kept_rings + 1).len();
         kept_rings += 1;
     }

@@ -7,8 +7,8 @@
 
 use super::frame::Frame;
 use super::neighbourhood::Neighbourhoods;
-use super::normals::vertex_normals;
-use super::quadric_fit::{Facing, FitKind, fit_neighbours};
+use super::normals::vertex_normals_f32;
+use super::quadric_fit::{Facing, FitKind, FitModel, fit_neighbours};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -20,6 +20,8 @@ pub const MAX_STEP: f64 = 1.0;
 /// What one pass (or a sum of passes) did.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
 pub struct FitStats {
+    /// Fits that used the quadric plus cubic terms.
+    pub cubic: u64,
     /// Fits that used the full quadric.
     pub quadric: u64,
     /// Fits that fell back to a plane.
@@ -35,6 +37,7 @@ pub struct FitStats {
 impl FitStats {
     fn merge(self, o: FitStats) -> FitStats {
         FitStats {
+            cubic: self.cubic + o.cubic,
             quadric: self.quadric + o.quadric,
             plane_fallback: self.plane_fallback + o.plane_fallback,
             fixed_fallback: self.fixed_fallback + o.fixed_fallback,
@@ -52,10 +55,11 @@ impl FitStats {
 /// Per-vertex curvature `(H, K)` from the fits of a pass.
 pub type Curvatures = Vec<(f64, f64)>;
 
-/// One Jacobi pass: fits every movable vertex's neighbourhood in
+/// One Jacobi pass: fits `model` to every movable vertex's neighbourhood in
 /// `positions` and writes the projected positions to `out` (immovable
-/// vertices are copied). Neighbours whose normal makes a cosine below
-/// `min_cos` with the vertex's are left out of its fit ([`Facing`]).
+/// vertices are copied; movable boundary vertices fit a plane). Neighbours
+/// whose normal makes a cosine below `min_cos` with the vertex's are left
+/// out of its fit ([`Facing`]).
 /// Returns the fit statistics and, per vertex, the curvature of its fit (0
 /// where it was not fitted).
 #[allow(clippy::too_many_arguments)]
@@ -65,18 +69,19 @@ pub fn fit_pass(
     positions: &[DVec3],
     hoods: &Neighbourhoods,
     movable: &[bool],
+    model: FitModel,
     min_cos: f64,
     out: &mut [DVec3],
     curvature: &mut [(f64, f64)],
 ) -> FitStats {
-    let normals = vertex_normals(mesh, topo, positions);
+    let normals = vertex_normals_f32(mesh, topo, positions);
     out.par_iter_mut()
         .zip(curvature.par_iter_mut())
         .enumerate()
         .with_min_len(1024)
         .map(|(v, (o, hk))| {
             let p = positions[v];
-            let n = normals[v];
+            let n = normals[v].as_dvec3().normalize_or_zero();
             *o = p;
             *hk = (0.0, 0.0);
             let mut s = FitStats::default();
@@ -84,14 +89,19 @@ pub fn fit_pass(
                 return s;
             }
             // A movable boundary vertex (rule `normal_only`) fits a plane.
-            let plane_only = topo.kind(v) == VertexKind::Boundary;
+            let model = if topo.kind(v) == VertexKind::Boundary {
+                FitModel::Plane
+            } else {
+                model
+            };
             let facing = Facing {
                 normals: &normals,
                 min_cos,
             };
             let frame = Frame::new(p, n);
-            let fit = fit_neighbours(&frame, positions, hoods.get(v), plane_only, Some(facing));
+            let fit = fit_neighbours(&frame, positions, hoods.get(v), model, Some(facing));
             match fit.kind {
+                FitKind::Cubic => s.cubic = 1,
                 FitKind::Quadric => s.quadric = 1,
                 FitKind::Plane => s.plane_fallback = 1,
                 FitKind::Fixed => s.fixed_fallback = 1,
