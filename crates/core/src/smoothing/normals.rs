@@ -16,14 +16,7 @@ pub fn vertex_normals(mesh: &Mesh, topo: &Topology, positions: &[DVec3]) -> Vec<
     (0..topo.num_vertices())
         .into_par_iter()
         .with_min_len(4096)
-        .map(|v| {
-            let s: DVec3 = topo
-                .vertex_faces(v)
-                .iter()
-                .map(|&f| vector_area(mesh.face(f as usize), positions))
-                .sum();
-            s.normalize_or_zero()
-        })
+        .map(|v| vertex_normal(mesh, topo, positions, v))
         .collect()
 }
 
@@ -34,15 +27,18 @@ pub fn vertex_normals_f32(mesh: &Mesh, topo: &Topology, positions: &[DVec3]) -> 
     (0..topo.num_vertices())
         .into_par_iter()
         .with_min_len(4096)
-        .map(|v| {
-            let s: DVec3 = topo
-                .vertex_faces(v)
-                .iter()
-                .map(|&f| vector_area(mesh.face(f as usize), positions))
-                .sum();
-            s.normalize_or_zero().as_vec3()
-        })
+        .map(|v| vertex_normal(mesh, topo, positions, v).as_vec3())
         .collect()
+}
+
+/// Unit area-weighted normal of vertex `v` (zero without area).
+fn vertex_normal(mesh: &Mesh, topo: &Topology, positions: &[DVec3], v: usize) -> DVec3 {
+    let s: DVec3 = topo
+        .vertex_faces(v)
+        .iter()
+        .map(|&f| vector_area(mesh.face(f as usize), positions))
+        .sum();
+    s.normalize_or_zero()
 }
 
 #[cfg(test)]

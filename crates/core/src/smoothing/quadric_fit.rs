@@ -612,6 +612,17 @@ mod tests {
         pts
     }
 
+    /// Deterministic pseudo-random numbers in `[-0.5, 0.5)` (xorshift).
+    fn uniform(seed: u64) -> impl FnMut() -> f64 {
+        let mut x = seed;
+        move || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        }
+    }
+
     #[test]
     fn recovers_an_exact_quadric() {
         let q =
@@ -664,13 +675,7 @@ mod tests {
     fn vector_and_portable_moments_agree_to_the_bit() {
         // Deterministic pseudo-random points, counts not a multiple of the
         // lane width included.
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform(0x9e37_79b9_7f4a_7c15);
         for n in [1usize, 5, 12, 40, 41, 130] {
             let pts: Vec<DVec3> = (0..n)
                 .map(|_| DVec3::new(3.0 * next(), 3.0 * next(), 0.3 * next()))
@@ -740,13 +745,7 @@ mod tests {
 
     #[test]
     fn vector_and_portable_cubic_moments_agree_to_the_bit() {
-        let mut x = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            x ^= x << 13;
-            x ^= x >> 7;
-            x ^= x << 17;
-            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform(0x2545_f491_4f6c_dd1d);
         for n in [4usize, 16, 56, 64, 132] {
             let mut cols = [vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![1.0; n]];
             for (col, scale) in cols.iter_mut().zip([3.0, 3.0, 0.3]) {
