@@ -91,6 +91,24 @@ impl QuadricFit {
         kind: FitKind::Fixed,
     };
 
+    /// The fit in the frame's units from coefficients `beta` solved in
+    /// coordinates scaled by `1 / s` (its quadric part: `a, b, c` scale by
+    /// `1 / s`, `e, f` are slopes, `g` scales by `s`).
+    fn from_scaled(beta: &[f64], s: f64, kind: FitKind) -> QuadricFit {
+        let inv_s = 1.0 / s;
+        QuadricFit {
+            coeffs: [
+                beta[0] * inv_s,
+                beta[1] * inv_s,
+                beta[2] * inv_s,
+                beta[3],
+                beta[4],
+                beta[5] * s,
+            ],
+            kind,
+        }
+    }
+
     /// Height of the fitted surface above the vertex, `h(0, 0) = g`.
     #[inline]
     pub fn height(&self) -> f64 {
@@ -280,7 +298,7 @@ fn fit_points(local: &[DVec3], s: f64, model: FitModel) -> QuadricFit {
     let inv_s = 1.0 / s;
     if model == FitModel::Cubic
         && count >= MIN_CUBIC_POINTS
-        && let Some(fit) = fit_cubic(local, inv_s)
+        && let Some(fit) = fit_cubic(local, s)
     {
         return fit;
     }
@@ -319,17 +337,7 @@ fn fit_points(local: &[DVec3], s: f64, model: FitModel) -> QuadricFit {
         && let Some(beta) = solve_packed::<6>(&ata, &atz)
         && beta[5].abs() <= 1.0
     {
-        return QuadricFit {
-            coeffs: [
-                beta[0] * inv_s,
-                beta[1] * inv_s,
-                beta[2] * inv_s,
-                beta[3],
-                beta[4],
-                beta[5] * s,
-            ],
-            kind: FitKind::Quadric,
-        };
+        return QuadricFit::from_scaled(&beta, s, FitKind::Quadric);
     }
     // Plane fallback: the trailing 3x3 block (x, y, 1) of the same system.
     let sub = [ata[15], ata[16], ata[17], ata[18], ata[19], ata[20]];
@@ -510,11 +518,11 @@ fn cubic_moments_lanes(
     (acc.map(|a| total(&a)), acc_z.map(|a| total(&a)))
 }
 
-/// The cubic model's fit (scaled coordinates: `inv_s = 1 / s`), or `None`
+/// The cubic model's fit (coordinates scaled by `1 / s`), or `None`
 /// when its equations are singular or its height is a spike (the caller
 /// falls back to the quadric).
-fn fit_cubic(local: &[DVec3], inv_s: f64) -> Option<QuadricFit> {
-    let (mo, rz) = cubic_moments(local, inv_s);
+fn fit_cubic(local: &[DVec3], s: f64) -> Option<QuadricFit> {
+    let (mo, rz) = cubic_moments(local, 1.0 / s);
     let mut ata = [0.0; 55];
     let mut atz = [0.0; 10];
     let mut k = 0;
@@ -529,18 +537,7 @@ fn fit_cubic(local: &[DVec3], inv_s: f64) -> Option<QuadricFit> {
     if beta[5].abs() > 1.0 {
         return None;
     }
-    let s = 1.0 / inv_s;
-    Some(QuadricFit {
-        coeffs: [
-            beta[0] * inv_s,
-            beta[1] * inv_s,
-            beta[2] * inv_s,
-            beta[3],
-            beta[4],
-            beta[5] * s,
-        ],
-        kind: FitKind::Cubic,
-    })
+    Some(QuadricFit::from_scaled(&beta, s, FitKind::Cubic))
 }
 
 #[allow(clippy::needless_range_loop)] // index arithmetic mirrors the maths
