@@ -10,6 +10,7 @@ use crate::report::{
 use crate::report::{QualityReport, StageMeasures};
 use crate::smoothing::adaptive::{
     AdaptiveNeighbourhoods, BEAM_WIDTH, GrowthRule, adaptive_neighbourhoods, agreement_masks,
+    is_refit_pass,
 };
 use crate::smoothing::curvature::{curvature_at, vertex_curvatures};
 use crate::smoothing::initial::smooth_passes;
@@ -200,6 +201,7 @@ pub fn wang_yu(
         FitModel::Quadric,
         min_cos,
         passes,
+        |_| true,
         cancel,
         |p| progress.update(Stage::Initial, p as f64 / passes.max(1) as f64),
     )?;
@@ -288,6 +290,7 @@ pub fn wang_yu(
         },
         min_cos,
         passes,
+        is_refit_pass,
         cancel,
         |p| progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64),
     )?;

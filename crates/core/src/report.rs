@@ -276,7 +276,9 @@ impl LabelCounts {
     }
 }
 
-/// How the fits of a stage ended (section 3 fallbacks).
+/// How the fits of a stage ended (section 3 fallbacks). Counts cover the
+/// passes that fit (not the adaptive passes that reuse a fit's linear
+/// weights); `max_step` and `clamped` cover every pass.
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct FitCounts {

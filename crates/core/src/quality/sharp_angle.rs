@@ -25,8 +25,10 @@
 //! leaves no defect and no angle below the threshold is taken; otherwise
 //! the best (fewest inverted faces, then fewest twisted quads, then the
 //! largest smallest angle); otherwise `v` stays. A vertex stuck in one
-//! sweep and visited again in the next also tries a pattern search: eight
-//! tangent directions at three step sizes, lifted likewise.
+//! sweep and visited again in the next also tries a pattern search: sixteen
+//! tangent directions at four step sizes (up to half the link radius),
+//! lifted likewise. (Eight directions at three sizes left two torus faces
+//! at 14.5 degrees, stuck in a position no smaller search improved.)
 //!
 //! Order: sweeps of colour classes. Sweep 1 visits the interior corners of
 //! every face with a sharp angle or an inverted split triangle; each later
@@ -186,9 +188,9 @@ impl Relocator {
         let mut best = self.best_of(mesh, v, &candidates, positions, cos_floor);
         if best.is_none() && thorough {
             candidates.clear();
-            for step in [0.25, 0.1, 0.04] {
-                for k in 0..8 {
-                    let (sin, cos) = (k as f64 * std::f64::consts::FRAC_PI_4).sin_cos();
+            for step in [0.5, 0.25, 0.1, 0.04] {
+                for k in 0..16 {
+                    let (sin, cos) = (k as f64 * std::f64::consts::FRAC_PI_8).sin_cos();
                     candidates.push(surface.point(step * radius * cos, step * radius * sin));
                 }
             }

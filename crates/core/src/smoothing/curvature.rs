@@ -33,7 +33,8 @@ pub fn vertex_curvatures(
         FitModel::Quadric,
         min_cos,
         &mut scratch,
-        &mut hk,
+        Some(&mut hk),
+        None,
     );
     (hk, stats)
 }

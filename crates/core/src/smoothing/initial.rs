@@ -2,7 +2,7 @@
 //! fits over the fixed 2-ring of every vertex.
 
 use super::neighbourhood::Neighbourhoods;
-use super::project::{Curvatures, FitStats, fit_pass};
+use super::project::{Curvatures, FitStats, fit_pass, weighted_pass};
 use super::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
 use crate::pipeline::{Cancelled, check};
@@ -10,8 +10,10 @@ use glam::DVec3;
 use std::sync::atomic::AtomicBool;
 
 /// Runs `passes` passes over `hoods` starting from `positions` (updated in
-/// place). Returns the summed fit statistics and the curvature of the last
-/// pass's fits (before its projection), or `None` when `passes == 0`.
+/// place). Pass `p` fits anew when `refit(p)` holds (always the last pass);
+/// the others are [`weighted_pass`]es with the weights of the latest fit.
+/// Returns the summed fit statistics and the curvature of the last pass's
+/// fits (before its projection), or `None` when `passes == 0`.
 /// `model` and `min_cos` are [`fit_pass`]'s.
 #[allow(clippy::too_many_arguments)]
 pub fn smooth_passes(
@@ -23,21 +25,134 @@ pub fn smooth_passes(
     model: FitModel,
     min_cos: f64,
     passes: u32,
+    refit: impl Fn(u32) -> bool,
     cancel: &AtomicBool,
     mut on_pass: impl FnMut(u32),
 ) -> Result<(FitStats, Option<Curvatures>), Cancelled> {
     let n = positions.len();
     let mut next = vec![DVec3::ZERO; n];
-    let mut hk = vec![(0.0, 0.0); n];
+    let last = passes.saturating_sub(1);
+    let refits = |p: u32| p == 0 || p == last || refit(p);
+    // Weights are kept only when some pass reuses them.
+    let mut weights = (0..passes)
+        .any(|p| !refits(p))
+        .then(|| hoods.zero_weights());
+    let mut hk = Vec::new();
     let mut stats = FitStats::default();
     for pass in 0..passes {
         check(cancel)?;
-        let s = fit_pass(
-            mesh, topo, positions, hoods, movable, model, min_cos, &mut next, &mut hk,
-        );
+        let s = match &weights {
+            Some(w) if !refits(pass) => {
+                weighted_pass(mesh, topo, positions, hoods, w, movable, &mut next)
+            }
+            _ => {
+                let reused = pass + 1 < passes && !refits(pass + 1);
+                if pass == last {
+                    // Free the weights before the curvature is allocated.
+                    weights = None;
+                    hk = vec![(0.0, 0.0); n];
+                }
+                fit_pass(
+                    mesh,
+                    topo,
+                    positions,
+                    hoods,
+                    movable,
+                    model,
+                    min_cos,
+                    &mut next,
+                    (pass == last).then_some(&mut hk[..]),
+                    weights.as_mut().filter(|_| reused),
+                )
+            }
+        };
         stats.accumulate(s);
         std::mem::swap(positions, &mut next);
         on_pass(pass + 1);
     }
     Ok((stats, (passes > 0).then_some(hk)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shapes::{self, Shape};
+    use crate::smoothing::adaptive::is_refit_pass;
+    use crate::smoothing::neighbourhood::push_thinned;
+
+    #[test]
+    fn reused_fits_track_fits_made_every_pass() {
+        let (sphere, mesh) = shapes::voxel_sphere(8.0);
+        let topo = Topology::build(&mesh);
+        let hoods = Neighbourhoods::build(&topo, |v, w, out| {
+            w.start(&topo, v);
+            for _ in 0..5 {
+                w.grow(&topo);
+            }
+            push_thinned(w, 56, 14, out);
+        });
+        let movable = vec![true; mesh.num_vertices()];
+        // As in the pipeline: the staircase goes first, in passes that fit.
+        let mut start = mesh.positions().to_vec();
+        let two_ring = Neighbourhoods::two_ring(&topo, 56);
+        let never = AtomicBool::new(false);
+        smooth_passes(
+            &mesh,
+            &topo,
+            &mut start,
+            &two_ring,
+            &movable,
+            FitModel::Quadric,
+            0.0,
+            3,
+            |_| true,
+            &never,
+            |_| {},
+        )
+        .expect("not cancelled");
+        let run = |refit: &dyn Fn(u32) -> bool| {
+            let mut p = start.clone();
+            let (stats, hk) = smooth_passes(
+                &mesh,
+                &topo,
+                &mut p,
+                &hoods,
+                &movable,
+                FitModel::Cubic,
+                0.0,
+                14,
+                refit,
+                &never,
+                |_| {},
+            )
+            .expect("not cancelled");
+            (p, stats, hk.expect("passes ran"))
+        };
+        let (every, every_stats, every_hk) = run(&|_| true);
+        let (reused, reused_stats, reused_hk) = run(&is_refit_pass);
+        // Passes 0, 4, 12 and 13 fit; the other ten reuse weights.
+        let fits = |s: &FitStats| s.cubic + s.quadric + s.plane_fallback + s.fixed_fallback;
+        assert_eq!(fits(&every_stats), 14 * mesh.num_vertices() as u64);
+        assert_eq!(fits(&reused_stats), 4 * mesh.num_vertices() as u64);
+        assert_ne!(every, reused, "the reused weights were not used");
+        let max_diff = every
+            .iter()
+            .zip(&reused)
+            .map(|(a, b)| a.distance(*b))
+            .fold(0.0, f64::max);
+        assert!(max_diff < 0.01, "moved {max_diff} apart");
+        let (rms_every, rms_reused) = (
+            shapes::rms_distance(&sphere, &every),
+            shapes::rms_distance(&sphere, &reused),
+        );
+        assert!(rms_reused < 0.25 * shapes::rms_distance(&sphere, mesh.positions()));
+        assert!(
+            (rms_every - rms_reused).abs() < 0.002,
+            "{rms_every} vs {rms_reused}"
+        );
+        // The last pass fits, so its curvature is reported: close to 1 / r.
+        let h = |hk: &[(f64, f64)]| hk.iter().map(|c| c.0).sum::<f64>() / hk.len() as f64;
+        assert!((h(&every_hk) - h(&reused_hk)).abs() < 1e-3);
+        assert!((h(&reused_hk).abs() - 1.0 / sphere.radius).abs() < 0.01);
+    }
 }

@@ -3,8 +3,10 @@
 //! so neither do the neighbourhoods).
 
 use crate::mesh::{RingWalker, Topology};
+use half::f16;
 use rayon::prelude::*;
 use std::cell::RefCell;
+use std::ops::Range;
 
 /// Per-vertex neighbour lists in CSR form, stored in the chunks they were
 /// built in (one copy, no concatenation: the lists are the largest arrays of
@@ -18,27 +20,95 @@ pub struct Neighbourhoods {
     chunks: Vec<Vec<u32>>,
 }
 
+/// One weight per entry of a [`Neighbourhoods`] (the linear fit weights of
+/// the adaptive passes), in the same chunks. Half precision (11 significant
+/// bits): the weights are stored for every neighbour of every vertex, and
+/// a weight's rounding moves a vertex by far less than its fit's own error.
+#[derive(Debug, Clone, Default)]
+pub struct NeighbourWeights {
+    chunks: Vec<Vec<f16>>,
+}
+
+impl NeighbourWeights {
+    /// The weights of vertex `v`'s neighbours in `hoods` (the lists these
+    /// weights were made for, [`Neighbourhoods::zero_weights`]).
+    #[inline]
+    pub fn get(&self, hoods: &Neighbourhoods, v: usize) -> &[f16] {
+        &self.chunks[v / CHUNK][hoods.span(v)]
+    }
+
+    /// Every chunk of `CHUNK` vertices with a function giving vertex `v`'s
+    /// weights (`v` counted in the whole mesh) inside it, for filling the
+    /// chunks in parallel.
+    pub fn chunks_mut<'a>(
+        &'a mut self,
+        hoods: &'a Neighbourhoods,
+    ) -> impl Iterator<Item = ChunkWeights<'a>> {
+        self.chunks
+            .iter_mut()
+            .enumerate()
+            .map(move |(c, weights)| ChunkWeights {
+                first: c * CHUNK,
+                weights,
+                hoods,
+            })
+    }
+}
+
+/// The weights of one chunk of vertices ([`NeighbourWeights::chunks_mut`]).
+pub struct ChunkWeights<'a> {
+    first: usize,
+    weights: &'a mut [f16],
+    hoods: &'a Neighbourhoods,
+}
+
+impl ChunkWeights<'_> {
+    /// The weights of vertex `v`, which must lie in this chunk.
+    #[inline]
+    pub fn get_mut(&mut self, v: usize) -> &mut [f16] {
+        debug_assert!(v - self.first < CHUNK);
+        &mut self.weights[self.hoods.span(v)]
+    }
+}
+
 thread_local! {
     static WALKER: RefCell<RingWalker> = RefCell::new(RingWalker::default());
     static LIST: RefCell<Vec<u32>> = const { RefCell::new(Vec::new()) };
 }
 
-/// Vertices per parallel work item when building neighbourhoods.
-const CHUNK: usize = 1024;
+/// Vertices per chunk of stored lists (and per parallel work item when
+/// building them).
+pub const CHUNK: usize = 1024;
 
 impl Neighbourhoods {
     /// Neighbours of vertex `v`.
     #[inline]
     pub fn get(&self, v: usize) -> &[u32] {
-        let (start, end) = (self.offsets[v] as usize, self.offsets[v + 1] as usize);
-        let chunk = &self.chunks[v / CHUNK];
+        &self.chunks[v / CHUNK][self.span(v)]
+    }
+
+    /// Where vertex `v`'s entries lie in its chunk (`v / CHUNK`).
+    #[inline]
+    fn span(&self, v: usize) -> Range<usize> {
+        let start = self.offsets[v] as usize;
         // The last vertex of a chunk ends at the chunk's end.
         let end = if (v + 1).is_multiple_of(CHUNK) {
-            chunk.len()
+            self.chunks[v / CHUNK].len()
         } else {
-            end
+            self.offsets[v + 1] as usize
         };
-        &chunk[start..end]
+        start..end
+    }
+
+    /// One zero weight per stored entry, laid out like the lists.
+    pub fn zero_weights(&self) -> NeighbourWeights {
+        NeighbourWeights {
+            chunks: self
+                .chunks
+                .iter()
+                .map(|c| vec![f16::ZERO; c.len()])
+                .collect(),
+        }
     }
 
     /// Number of vertices covered.

@@ -6,11 +6,12 @@
 //! and independent of the thread count.
 
 use super::frame::Frame;
-use super::neighbourhood::Neighbourhoods;
-use super::normals::vertex_normals_f32;
-use super::quadric_fit::{Facing, FitKind, FitModel, fit_neighbours};
+use super::neighbourhood::{CHUNK, ChunkWeights, NeighbourWeights, Neighbourhoods};
+use super::normals::{vertex_normal, vertex_normals_f32};
+use super::quadric_fit::{Facing, FitKind, FitModel, fit_neighbours, fit_neighbours_weighted};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::DVec3;
+use half::f16;
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -60,8 +61,10 @@ pub type Curvatures = Vec<(f64, f64)>;
 /// vertices are copied; movable boundary vertices fit a plane). Neighbours
 /// whose normal makes a cosine below `min_cos` with the vertex's are left
 /// out of its fit ([`Facing`]).
-/// Returns the fit statistics and, per vertex, the curvature of its fit (0
-/// where it was not fitted).
+/// With `curvature`, writes per vertex the curvature of its fit (0 where it
+/// was not fitted); with `weights` (made by `hoods`), each fit's linear
+/// weights ([`fit_neighbours_weighted`]) for [`weighted_pass`].
+/// Returns the fit statistics.
 #[allow(clippy::too_many_arguments)]
 pub fn fit_pass(
     mesh: &Mesh,
@@ -72,57 +75,132 @@ pub fn fit_pass(
     model: FitModel,
     min_cos: f64,
     out: &mut [DVec3],
-    curvature: &mut [(f64, f64)],
+    curvature: Option<&mut [(f64, f64)]>,
+    weights: Option<&mut NeighbourWeights>,
 ) -> FitStats {
     let normals = vertex_normals_f32(mesh, topo, positions);
-    out.par_iter_mut()
-        .zip(curvature.par_iter_mut())
+    let chunks = out.len().div_ceil(CHUNK);
+    let curvature: Vec<Option<&mut [(f64, f64)]>> = match curvature {
+        Some(c) => c.chunks_mut(CHUNK).map(Some).collect(),
+        None => (0..chunks).map(|_| None).collect(),
+    };
+    let weights: Vec<Option<ChunkWeights>> = match weights {
+        Some(w) => w.chunks_mut(hoods).map(Some).collect(),
+        None => (0..chunks).map(|_| None).collect(),
+    };
+    out.par_chunks_mut(CHUNK)
+        .zip(curvature)
+        .zip(weights)
         .enumerate()
-        .with_min_len(1024)
-        .map(|(v, (o, hk))| {
-            let p = positions[v];
-            let n = normals[v].as_dvec3().normalize_or_zero();
-            *o = p;
-            *hk = (0.0, 0.0);
-            let mut s = FitStats::default();
-            if !movable[v] || n == DVec3::ZERO {
-                return s;
+        .map(|(c, ((out, mut hk), mut weights))| {
+            let mut stats = FitStats::default();
+            for (i, o) in out.iter_mut().enumerate() {
+                let v = c * CHUNK + i;
+                let p = positions[v];
+                *o = p;
+                if let Some(hk) = hk.as_deref_mut() {
+                    hk[i] = (0.0, 0.0);
+                }
+                let w = weights.as_mut().map(|w| w.get_mut(v));
+                let n = normals[v].as_dvec3().normalize_or_zero();
+                if !movable[v] || n == DVec3::ZERO {
+                    if let Some(w) = w {
+                        w.fill(f16::ZERO);
+                    }
+                    continue;
+                }
+                // A movable boundary vertex (rule `normal_only`) fits a plane.
+                let model = if topo.kind(v) == VertexKind::Boundary {
+                    FitModel::Plane
+                } else {
+                    model
+                };
+                let facing = Facing {
+                    normals: &normals,
+                    min_cos,
+                };
+                let frame = Frame::new(p, n);
+                let fit = match w {
+                    Some(w) => fit_neighbours_weighted(
+                        &frame,
+                        positions,
+                        hoods.get(v),
+                        model,
+                        Some(facing),
+                        w,
+                    ),
+                    None => fit_neighbours(&frame, positions, hoods.get(v), model, Some(facing)),
+                };
+                match fit.kind {
+                    FitKind::Cubic => stats.cubic += 1,
+                    FitKind::Quadric => stats.quadric += 1,
+                    FitKind::Plane => stats.plane_fallback += 1,
+                    FitKind::Fixed => stats.fixed_fallback += 1,
+                }
+                if let Some(hk) = hk.as_deref_mut() {
+                    hk[i] = fit.curvature();
+                }
+                *o = p + step(topo, positions, v, fit.height(), &mut stats) * n;
             }
-            // A movable boundary vertex (rule `normal_only`) fits a plane.
-            let model = if topo.kind(v) == VertexKind::Boundary {
-                FitModel::Plane
-            } else {
-                model
-            };
-            let facing = Facing {
-                normals: &normals,
-                min_cos,
-            };
-            let frame = Frame::new(p, n);
-            let fit = fit_neighbours(&frame, positions, hoods.get(v), model, Some(facing));
-            match fit.kind {
-                FitKind::Cubic => s.cubic = 1,
-                FitKind::Quadric => s.quadric = 1,
-                FitKind::Plane => s.plane_fallback = 1,
-                FitKind::Fixed => s.fixed_fallback = 1,
-            }
-            *hk = fit.curvature();
-            // No jumps: one pass moves a vertex by at most its mean
-            // edge length (staircase noise needs at most half of that;
-            // a larger step means a fit that does not describe the surface).
-            let nb = topo.neighbors(v);
-            let local = nb
-                .iter()
-                .map(|&j| positions[j as usize].distance(p))
-                .sum::<f64>()
-                / nb.len().max(1) as f64;
-            let g = fit.height().clamp(-MAX_STEP * local, MAX_STEP * local);
-            if g != fit.height() {
-                s.clamped = 1;
-            }
-            *o = p + g * n;
-            s.max_displacement = g.abs();
-            s
+            stats
         })
         .reduce(FitStats::default, FitStats::merge)
+}
+
+/// One Jacobi pass that moves each vertex along its current normal by the
+/// height its last fit's linear `weights` give for the current heights of
+/// its neighbours ([`fit_neighbours_weighted`]): the fit repeated with its
+/// frame coordinates and point weights kept, at the cost of one weighted
+/// sum. Vertices whose weights are all zero (fixed, immovable) stay.
+/// Counts no fits; returns the displacement statistics.
+pub fn weighted_pass(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &[DVec3],
+    hoods: &Neighbourhoods,
+    weights: &NeighbourWeights,
+    movable: &[bool],
+    out: &mut [DVec3],
+) -> FitStats {
+    out.par_iter_mut()
+        .enumerate()
+        .with_min_len(CHUNK)
+        .map(|(v, o)| {
+            let p = positions[v];
+            *o = p;
+            let mut stats = FitStats::default();
+            if !movable[v] {
+                return stats;
+            }
+            let n = vertex_normal(mesh, topo, positions, v);
+            let mut d = DVec3::ZERO;
+            for (&j, &a) in hoods.get(v).iter().zip(weights.get(hoods, v)) {
+                d += f64::from(a.to_f32()) * (positions[j as usize] - p);
+            }
+            *o = p + step(topo, positions, v, d.dot(n), &mut stats) * n;
+            stats
+        })
+        .reduce(FitStats::default, FitStats::merge)
+}
+
+/// The height `g` a pass moves vertex `v` by, cut to [`MAX_STEP`] times the
+/// vertex's mean edge length (counted in `stats`): staircase noise needs at
+/// most half of that, and a larger step means a fit that does not describe
+/// the surface.
+#[inline]
+fn step(topo: &Topology, positions: &[DVec3], v: usize, g: f64, stats: &mut FitStats) -> f64 {
+    let p = positions[v];
+    let nb = topo.neighbors(v);
+    let local = nb
+        .iter()
+        .map(|&j| positions[j as usize].distance(p))
+        .sum::<f64>()
+        / nb.len().max(1) as f64;
+    let limit = MAX_STEP * local;
+    let cut = g.clamp(-limit, limit);
+    if cut != g {
+        stats.clamped += 1;
+    }
+    stats.max_displacement = stats.max_displacement.max(cut.abs());
+    cut
 }

@@ -31,6 +31,7 @@
 
 use super::frame::Frame;
 use glam::{DVec3, Vec3};
+use half::f16;
 
 /// Relative pivot below which a normal-equation system counts as singular.
 pub const MIN_RELATIVE_PIVOT: f64 = 1e-7;
@@ -161,6 +162,38 @@ pub fn fit_neighbours(
     model: FitModel,
     facing: Option<Facing>,
 ) -> QuadricFit {
+    gather_and_fit(frame, positions, neighbours, model, facing, None)
+}
+
+/// [`fit_neighbours`], and also the fit's linear weights: `weights[j]`
+/// (one per neighbour) such that the fitted height is
+/// `sum_j weights[j] * (positions[neighbours[j]] - origin) . w` as long as
+/// the points keep their frame coordinates `x, y` and distances (the
+/// least-squares height is linear in the heights). Neighbours left out of
+/// the fit weigh 0; so do all of them when the vertex is fixed. The
+/// weights sum to 1 and annul `x` and `y` (the model holds the constant
+/// and the linear terms), so a small tilt of the frame leaves the height
+/// unchanged.
+pub fn fit_neighbours_weighted(
+    frame: &Frame,
+    positions: &[DVec3],
+    neighbours: &[u32],
+    model: FitModel,
+    facing: Option<Facing>,
+    weights: &mut [f16],
+) -> QuadricFit {
+    weights.fill(f16::ZERO);
+    gather_and_fit(frame, positions, neighbours, model, facing, Some(weights))
+}
+
+fn gather_and_fit(
+    frame: &Frame,
+    positions: &[DVec3],
+    neighbours: &[u32],
+    model: FitModel,
+    facing: Option<Facing>,
+    weights: Option<&mut [f16]>,
+) -> QuadricFit {
     let neighbours = &neighbours[..neighbours.len().min(MAX_FIT_POINTS)];
     if neighbours.len() < 3 {
         return QuadricFit::FIXED;
@@ -168,18 +201,23 @@ pub fn fit_neighbours(
     // One gather of the scattered positions, in local coordinates; the
     // moments then run over a small contiguous buffer (on the stack for the
     // usual sizes: zeroing a buffer for the largest case would cost more
-    // than a small fit).
+    // than a small fit). `source[k]` is the neighbour slot of point `k`.
     let mut stack = [DVec3::ZERO; STACK_POINTS];
-    let mut heap = Vec::new();
-    let local = if neighbours.len() <= STACK_POINTS {
-        &mut stack[..neighbours.len()]
+    let mut stack_source = [0u16; STACK_POINTS];
+    let (mut heap, mut heap_source) = (Vec::new(), Vec::new());
+    let (local, source) = if neighbours.len() <= STACK_POINTS {
+        (
+            &mut stack[..neighbours.len()],
+            &mut stack_source[..neighbours.len()],
+        )
     } else {
         heap.resize(neighbours.len(), DVec3::ZERO);
-        &mut heap[..]
+        heap_source.resize(neighbours.len(), 0);
+        (&mut heap[..], &mut heap_source[..])
     };
     let mut sum_d2 = 0.0;
     let mut kept = 0;
-    for &j in neighbours {
+    for (slot, &j) in neighbours.iter().enumerate() {
         if let Some(f) = facing {
             let cos = f.normals[j as usize].as_dvec3().dot(frame.w);
             if cos < f.min_cos || cos.is_nan() {
@@ -189,19 +227,36 @@ pub fn fit_neighbours(
         let d = positions[j as usize] - frame.origin;
         sum_d2 += d.length_squared();
         local[kept] = DVec3::new(frame.u.dot(d), frame.v.dot(d), frame.w.dot(d));
+        // Fits a u16: at most MAX_FIT_POINTS slots.
+        source[kept] = slot as u16;
         kept += 1;
     }
     if kept < 3 || sum_d2.is_nan() || sum_d2 <= 0.0 {
         return QuadricFit::FIXED;
     }
     let s = (sum_d2 / kept as f64).sqrt();
-    fit_points(&local[..kept], s, model)
+    let Some(weights) = weights else {
+        return fit_points(&local[..kept], s, model, None);
+    };
+    let mut stack_a = [0.0; STACK_POINTS];
+    let mut heap_a = Vec::new();
+    let a = if kept <= STACK_POINTS {
+        &mut stack_a[..kept]
+    } else {
+        heap_a.resize(kept, 0.0);
+        &mut heap_a[..]
+    };
+    let fit = fit_points(&local[..kept], s, model, Some(a));
+    for (&slot, &ak) in source[..kept].iter().zip(a.iter()) {
+        weights[slot as usize] = f16::from_f32(ak as f32);
+    }
+    fit
 }
 
 /// Fits to points already in local coordinates; `s` is the neighbourhood
 /// scale (root mean square distance).
 pub fn fit_local(local: &[DVec3], s: f64) -> QuadricFit {
-    fit_points(local, s, FitModel::Quadric)
+    fit_points(local, s, FitModel::Quadric, None)
 }
 
 /// The weight of a point at squared scaled distance `t = d^2 / s^2`: a
@@ -293,12 +348,20 @@ fn moments_portable(local: &[DVec3], inv_s: f64) -> ([f64; 15], [f64; 6]) {
     (mo, rz)
 }
 
-fn fit_points(local: &[DVec3], s: f64, model: FitModel) -> QuadricFit {
+/// Fits `model` (or a fallback) to `local`; with `weights` (one per
+/// point), also writes the fit's linear weights (see
+/// [`fit_neighbours_weighted`]), zero when the fit is [`FitKind::Fixed`].
+fn fit_points(
+    local: &[DVec3],
+    s: f64,
+    model: FitModel,
+    mut weights: Option<&mut [f64]>,
+) -> QuadricFit {
     let count = local.len();
     let inv_s = 1.0 / s;
     if model == FitModel::Cubic
         && count >= MIN_CUBIC_POINTS
-        && let Some(fit) = fit_cubic(local, s)
+        && let Some(fit) = fit_cubic(local, s, weights.as_deref_mut())
     {
         return fit;
     }
@@ -334,28 +397,70 @@ fn fit_points(local: &[DVec3], s: f64, model: FitModel) -> QuadricFit {
     let atz = rz;
     if count >= 6
         && !plane_only
-        && let Some(beta) = solve_packed::<6>(&ata, &atz)
+        && let Some(ldl) = ldl_factor::<6>(&ata)
+        && let Some(beta) = ldl_solve(&ldl, &atz)
         && beta[5].abs() <= 1.0
     {
+        if let Some(a) = weights {
+            linear_weights(local, inv_s, 1.0, &CUBIC_BASIS[..6], &ldl, a);
+        }
         return QuadricFit::from_scaled(&beta, s, FitKind::Quadric);
     }
     // Plane fallback: the trailing 3x3 block (x, y, 1) of the same system.
     let sub = [ata[15], ata[16], ata[17], ata[18], ata[19], ata[20]];
     let rhs = [atz[3], atz[4], atz[5]];
-    if let Some(beta) = solve_packed::<3>(&sub, &rhs)
+    if let Some(ldl) = ldl_factor::<3>(&sub)
+        && let Some(beta) = ldl_solve(&ldl, &rhs)
         && beta[2].abs() <= 1.0
     {
+        if let Some(a) = weights {
+            linear_weights(local, inv_s, 1.0, &CUBIC_BASIS[3..6], &ldl, a);
+        }
         return QuadricFit {
             coeffs: [0.0, 0.0, 0.0, beta[0], beta[1], beta[2] * s],
             kind: FitKind::Plane,
         };
     }
+    if let Some(a) = weights {
+        a.fill(0.0);
+    }
     QuadricFit::FIXED
 }
 
-/// Solves the symmetric system whose upper triangle is packed row-wise in
-/// `a` by LDL^T without pivoting; `None` when a pivot is below
-/// [`MIN_RELATIVE_PIVOT`] times the largest diagonal entry or not finite.
+/// The linear weights of a solved fit: with `ldl` the factorised normal
+/// matrix of `basis` (whose last function is the constant), the height is
+/// `e^T M^-1 sum_k w_k phi_k z_k`, so point `k` weighs
+/// `w_k phi_k . (M^-1 e)`, `e` selecting the constant term (index 5 of the
+/// quadric and cubic bases, 2 of the plane's). `kernel` is the
+/// fit's ([`CUBIC_KERNEL`] or 1). The weights are dimensionless: the same
+/// in scaled and frame units.
+fn linear_weights<const N: usize>(
+    local: &[DVec3],
+    inv_s: f64,
+    kernel: f64,
+    basis: &[(usize, usize)],
+    ldl: &[[f64; N]; N],
+    out: &mut [f64],
+) {
+    let mut e = [0.0; N];
+    e[if N == 3 { 2 } else { 5 }] = 1.0;
+    // The factorisation succeeded, so the solve is finite.
+    let z = ldl_solve(ldl, &e).unwrap_or([0.0; N]);
+    for (l, a) in local.iter().zip(out.iter_mut()) {
+        let (x, y, h) = (l.x * inv_s, l.y * inv_s, l.z * inv_s);
+        let w = weight(kernel * (x * x + y * y + h * h));
+        // Powers up to 3, the highest a basis holds.
+        let xp = [1.0, x, x * x, x * x * x];
+        let yp = [1.0, y, y * y, y * y * y];
+        let phi: f64 = basis
+            .iter()
+            .zip(&z)
+            .map(|(&(i, j), zk)| zk * xp[i] * yp[j])
+            .sum();
+        *a = w * phi;
+    }
+}
+
 /// Exponents `(i, j)` of the cubic model's basis `x^i y^j`, in the order of
 /// its coefficients: the quadric's six, then the four cubic terms.
 const CUBIC_BASIS: [(usize, usize); 10] = [
@@ -521,7 +626,7 @@ fn cubic_moments_lanes(
 /// The cubic model's fit (coordinates scaled by `1 / s`), or `None`
 /// when its equations are singular or its height is a spike (the caller
 /// falls back to the quadric).
-fn fit_cubic(local: &[DVec3], s: f64) -> Option<QuadricFit> {
+fn fit_cubic(local: &[DVec3], s: f64, weights: Option<&mut [f64]>) -> Option<QuadricFit> {
     let (mo, rz) = cubic_moments(local, 1.0 / s);
     let mut ata = [0.0; 55];
     let mut atz = [0.0; 10];
@@ -533,15 +638,30 @@ fn fit_cubic(local: &[DVec3], s: f64) -> Option<QuadricFit> {
         }
         atz[r] = rz[moment_index(ri, rj)];
     }
-    let beta = solve_packed::<10>(&ata, &atz)?;
+    let ldl = ldl_factor::<10>(&ata)?;
+    let beta = ldl_solve(&ldl, &atz)?;
     if beta[5].abs() > 1.0 {
         return None;
+    }
+    if let Some(a) = weights {
+        linear_weights(local, 1.0 / s, CUBIC_KERNEL, &CUBIC_BASIS, &ldl, a);
     }
     Some(QuadricFit::from_scaled(&beta, s, FitKind::Cubic))
 }
 
-#[allow(clippy::needless_range_loop)] // index arithmetic mirrors the maths
+/// Solves the symmetric system whose upper triangle is packed row-wise in
+/// `a` ([`ldl_factor`], [`ldl_solve`]).
+#[cfg(test)]
 fn solve_packed<const N: usize>(a: &[f64], b: &[f64; N]) -> Option<[f64; N]> {
+    ldl_solve(&ldl_factor::<N>(a)?, b)
+}
+
+/// Factorises the symmetric matrix whose upper triangle is packed row-wise
+/// in `a` as L D L^T without pivoting (L strictly below the diagonal, D on
+/// it); `None` when a pivot is below [`MIN_RELATIVE_PIVOT`] times the
+/// largest diagonal entry or not finite.
+#[allow(clippy::needless_range_loop)] // index arithmetic mirrors the maths
+fn ldl_factor<const N: usize>(a: &[f64]) -> Option<[[f64; N]; N]> {
     // Unpack into a full matrix (small and on the stack).
     let mut m = [[0.0f64; N]; N];
     let mut k = 0;
@@ -557,7 +677,6 @@ fn solve_packed<const N: usize>(a: &[f64], b: &[f64; N]) -> Option<[f64; N]> {
         return None;
     }
     let tol = MIN_RELATIVE_PIVOT * max_diag;
-    // In-place LDL^T: L strictly below the diagonal, D on it.
     for j in 0..N {
         let mut d = m[j][j];
         for p in 0..j {
@@ -575,6 +694,13 @@ fn solve_packed<const N: usize>(a: &[f64], b: &[f64; N]) -> Option<[f64; N]> {
             m[i][j] = s / d;
         }
     }
+    Some(m)
+}
+
+/// Solves `L D L^T x = b` with a factorisation from [`ldl_factor`]; `None`
+/// when the solution is not finite.
+#[allow(clippy::needless_range_loop)] // index arithmetic mirrors the maths
+fn ldl_solve<const N: usize>(m: &[[f64; N]; N], b: &[f64; N]) -> Option<[f64; N]> {
     let mut x = *b;
     for i in 0..N {
         for p in 0..i {
@@ -738,6 +864,61 @@ mod tests {
         let ids: Vec<u32> = (0..pts.len() as u32).collect();
         let fit = fit_neighbours(&frame, &pts, &ids, FitModel::Cubic, None);
         assert_eq!(fit.kind, FitKind::Quadric);
+    }
+
+    #[test]
+    fn linear_weights_give_the_fitted_height_and_ignore_a_tilt() {
+        // A bumpy, tilted patch around a vertex at the origin, with two
+        // neighbours facing away (left out of the fit, weight 0).
+        let mut next = uniform(0x9e37_79b9_7f4a_7c15);
+        let mut pts: Vec<DVec3> = (0..40)
+            .map(|_| {
+                let (x, y) = (3.0 * next(), 3.0 * next());
+                DVec3::new(x, y, 0.2 * x - 0.1 * y + 0.3 * x * x + 0.05 * next())
+            })
+            .collect();
+        pts.push(DVec3::new(0.4, 0.1, -0.3));
+        pts.push(DVec3::new(-0.2, 0.5, -0.2));
+        let mut normals = vec![glam::Vec3::Z; pts.len()];
+        normals[40] = -glam::Vec3::Z;
+        normals[41] = -glam::Vec3::Z;
+        let facing = Facing {
+            normals: &normals,
+            min_cos: 0.0,
+        };
+        let frame = Frame::new(DVec3::ZERO, DVec3::Z);
+        let ids: Vec<u32> = (0..pts.len() as u32).collect();
+        let mut w = vec![f16::ONE; pts.len()];
+        for (model, kind) in [
+            (FitModel::Cubic, FitKind::Cubic),
+            (FitModel::Quadric, FitKind::Quadric),
+            (FitModel::Plane, FitKind::Plane),
+        ] {
+            let fit = fit_neighbours_weighted(&frame, &pts, &ids, model, Some(facing), &mut w);
+            assert_eq!(fit, fit_neighbours(&frame, &pts, &ids, model, Some(facing)));
+            assert_eq!(fit.kind, kind);
+            let a: Vec<f64> = w.iter().map(|x| f64::from(x.to_f32())).collect();
+            assert_eq!((a[40], a[41]), (0.0, 0.0), "{kind:?}: left-out points");
+            let height: f64 = a.iter().zip(&pts).map(|(a, p)| a * p.z).sum();
+            // Half-precision weights: about 1e-3 of the heights' size.
+            assert!(
+                (height - fit.height()).abs() < 2e-3,
+                "{kind:?}: {height} vs {}",
+                fit.height()
+            );
+            let sum: f64 = a.iter().sum();
+            let (mx, my): (f64, f64) = (
+                a.iter().zip(&pts).map(|(a, p)| a * p.x).sum(),
+                a.iter().zip(&pts).map(|(a, p)| a * p.y).sum(),
+            );
+            assert!((sum - 1.0).abs() < 2e-3, "{kind:?}: weights sum to {sum}");
+            assert!(mx.abs() < 5e-3 && my.abs() < 5e-3, "{kind:?}: {mx} {my}");
+        }
+        // No usable fit: every weight 0.
+        let fit =
+            fit_neighbours_weighted(&frame, &pts, &ids[..2], FitModel::Cubic, None, &mut w[..2]);
+        assert_eq!(fit.kind, FitKind::Fixed);
+        assert!(w[..2].iter().all(|x| *x == f16::ZERO));
     }
 
     #[test]
