@@ -151,7 +151,11 @@ pub fn fit_pass(
 /// height its last fit's linear `weights` give for the current heights of
 /// its neighbours ([`fit_neighbours_weighted`]): the fit repeated with its
 /// frame coordinates and point weights kept, at the cost of one weighted
-/// sum. Vertices whose weights are all zero (fixed, immovable) stay.
+/// sum. Vertices whose weights are all zero (fixed, immovable) stay; so
+/// does a vertex whose move would exceed [`MAX_STEP`] times its mean edge
+/// length in the input mesh (counted as clamped): reused weights no longer
+/// describe a surface that has moved that far, and a bound taken from the
+/// current edges could grow with them, pass after pass.
 /// Counts no fits; returns the displacement statistics.
 pub fn weighted_pass(
     mesh: &Mesh,
@@ -177,10 +181,27 @@ pub fn weighted_pass(
             for (&j, &a) in hoods.get(v).iter().zip(weights.get(hoods, v)) {
                 d += f64::from(a.to_f32()) * (positions[j as usize] - p);
             }
-            *o = p + step(topo, positions, v, d.dot(n), &mut stats) * n;
+            let g = d.dot(n);
+            if g.abs() > MAX_STEP * mean_edge_at(topo, mesh.positions(), v) || !g.is_finite() {
+                stats.clamped += 1;
+                return stats;
+            }
+            *o = p + g * n;
+            stats.max_displacement = g.abs();
             stats
         })
         .reduce(FitStats::default, FitStats::merge)
+}
+
+/// Mean length of the edges at vertex `v` in `positions`.
+#[inline]
+fn mean_edge_at(topo: &Topology, positions: &[DVec3], v: usize) -> f64 {
+    let p = positions[v];
+    let nb = topo.neighbors(v);
+    nb.iter()
+        .map(|&j| positions[j as usize].distance(p))
+        .sum::<f64>()
+        / nb.len().max(1) as f64
 }
 
 /// The height `g` a pass moves vertex `v` by, cut to [`MAX_STEP`] times the
@@ -189,18 +210,50 @@ pub fn weighted_pass(
 /// the surface.
 #[inline]
 fn step(topo: &Topology, positions: &[DVec3], v: usize, g: f64, stats: &mut FitStats) -> f64 {
-    let p = positions[v];
-    let nb = topo.neighbors(v);
-    let local = nb
-        .iter()
-        .map(|&j| positions[j as usize].distance(p))
-        .sum::<f64>()
-        / nb.len().max(1) as f64;
-    let limit = MAX_STEP * local;
+    let limit = MAX_STEP * mean_edge_at(topo, positions, v);
     let cut = g.clamp(-limit, limit);
     if cut != g {
         stats.clamped += 1;
     }
     stats.max_displacement = stats.max_displacement.max(cut.abs());
     cut
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::test_grid as grid;
+
+    #[test]
+    fn a_reused_fit_never_jumps_beyond_an_input_edge() {
+        // A flat unit grid whose centre vertex puts all its weight on one
+        // neighbour: the vertex follows that neighbour's height while it
+        // stays within one input edge length, and stays put beyond.
+        let mesh = grid(4);
+        let topo = Topology::build(&mesh);
+        let hoods = Neighbourhoods::two_ring(&topo, 64);
+        let centre = 12;
+        let target = hoods.get(centre)[0] as usize;
+        let mut weights = hoods.zero_weights();
+        for mut chunk in weights.chunks_mut(&hoods) {
+            chunk.get_mut(centre)[0] = f16::ONE;
+        }
+        let movable = vec![true; mesh.num_vertices()];
+        let mut out = vec![DVec3::ZERO; mesh.num_vertices()];
+        let edge = mean_edge_at(&topo, mesh.positions(), centre);
+        let normal = vertex_normal(&mesh, &topo, mesh.positions(), centre);
+        for (lift, moves) in [(0.5, true), (3.0, false)] {
+            let mut p = mesh.positions().to_vec();
+            p[target] += lift * edge * normal;
+            let stats = weighted_pass(&mesh, &topo, &p, &hoods, &weights, &movable, &mut out);
+            let moved = out[centre].distance(p[centre]);
+            if moves {
+                assert!(moved > 0.3 * edge, "followed by {moved}");
+                assert_eq!(stats.clamped, 0);
+            } else {
+                assert_eq!(moved, 0.0);
+                assert_eq!(stats.clamped, 1);
+            }
+        }
+    }
 }

@@ -402,7 +402,7 @@ fn fit_points(
         && beta[5].abs() <= 1.0
     {
         if let Some(a) = weights {
-            linear_weights(local, inv_s, 1.0, &CUBIC_BASIS[..6], &ldl, a);
+            linear_weights(local, inv_s, &CUBIC_BASIS[..6], &ldl, a);
         }
         return QuadricFit::from_scaled(&beta, s, FitKind::Quadric);
     }
@@ -414,7 +414,7 @@ fn fit_points(
         && beta[2].abs() <= 1.0
     {
         if let Some(a) = weights {
-            linear_weights(local, inv_s, 1.0, &CUBIC_BASIS[3..6], &ldl, a);
+            linear_weights(local, inv_s, &CUBIC_BASIS[3..6], &ldl, a);
         }
         return QuadricFit {
             coeffs: [0.0, 0.0, 0.0, beta[0], beta[1], beta[2] * s],
@@ -427,31 +427,35 @@ fn fit_points(
     QuadricFit::FIXED
 }
 
-/// The linear weights of a solved fit: with `ldl` the factorised normal
-/// matrix of `basis` (whose last function is the constant), the height is
+/// `M^-1 e` for the factorised normal matrix `ldl` of a basis, `e` selecting
+/// its constant term (index 5 of the quadric and cubic bases, 2 of the
+/// plane's); zero if not finite.
+fn solve_for_constant<const N: usize>(ldl: &[[f64; N]; N]) -> [f64; N] {
+    let mut e = [0.0; N];
+    e[if N == 3 { 2 } else { 5 }] = 1.0;
+    ldl_solve(ldl, &e).unwrap_or([0.0; N])
+}
+
+/// The linear weights of a solved quadric or plane fit: with `ldl` the
+/// factorised normal matrix `M` of `basis`, the height is
 /// `e^T M^-1 sum_k w_k phi_k z_k`, so point `k` weighs
-/// `w_k phi_k . (M^-1 e)`, `e` selecting the constant term (index 5 of the
-/// quadric and cubic bases, 2 of the plane's). `kernel` is the
-/// fit's ([`CUBIC_KERNEL`] or 1). The weights are dimensionless: the same
-/// in scaled and frame units.
+/// `w_k phi_k . M^-1 e` ([`solve_for_constant`]). The weights are
+/// dimensionless: the same in scaled and frame units. (The cubic fit
+/// computes its own from the kernel weights its moments left.)
 fn linear_weights<const N: usize>(
     local: &[DVec3],
     inv_s: f64,
-    kernel: f64,
     basis: &[(usize, usize)],
     ldl: &[[f64; N]; N],
     out: &mut [f64],
 ) {
-    let mut e = [0.0; N];
-    e[if N == 3 { 2 } else { 5 }] = 1.0;
-    // The factorisation succeeded, so the solve is finite.
-    let z = ldl_solve(ldl, &e).unwrap_or([0.0; N]);
+    let z = solve_for_constant(ldl);
     for (l, a) in local.iter().zip(out.iter_mut()) {
         let (x, y, h) = (l.x * inv_s, l.y * inv_s, l.z * inv_s);
-        let w = weight(kernel * (x * x + y * y + h * h));
-        // Powers up to 3, the highest a basis holds.
-        let xp = [1.0, x, x * x, x * x * x];
-        let yp = [1.0, y, y * y, y * y * y];
+        let w = weight(x * x + y * y + h * h);
+        // Powers up to 2, the highest a quadric holds.
+        let xp = [1.0, x, x * x];
+        let yp = [1.0, y, y * y];
         let phi: f64 = basis
             .iter()
             .zip(&z)
@@ -485,34 +489,16 @@ const fn moment_index(i: usize, j: usize) -> usize {
 
 /// Weighted moments of the cubic fit: `sum w x^i y^j` for `i + j <= 6` and
 /// `sum w z x^i y^j` for `i + j <= 3` (indexed by [`moment_index`]), over
-/// the points scaled by `inv_s`, in four fixed lanes like [`moments`].
-fn cubic_moments(local: &[DVec3], inv_s: f64) -> ([f64; 28], [f64; 10]) {
-    // Coordinates one array each (structure of arrays), padded to whole
-    // lanes with points of weight 0: the loop below is then plain vector
-    // arithmetic, with no shuffles and no partial chunk.
-    let n = local.len();
-    let padded = n.div_ceil(LANES) * LANES;
-    let mut stack = [[0.0f64; STACK_POINTS]; 4];
-    let mut heap = Vec::new();
-    let [xs, ys, zs, present] = if padded <= STACK_POINTS {
-        stack.each_mut().map(|a| &mut a[..padded])
-    } else {
-        heap.resize(4 * padded, 0.0);
-        let (a, rest) = heap.split_at_mut(padded);
-        let (b, rest) = rest.split_at_mut(padded);
-        let (c, d) = rest.split_at_mut(padded);
-        [a, b, c, d]
-    };
-    for (i, l) in local.iter().enumerate() {
-        (xs[i], ys[i], zs[i]) = (l.x * inv_s, l.y * inv_s, l.z * inv_s);
-        present[i] = 1.0;
-    }
+/// scaled points in structure-of-arrays form padded to whole lanes
+/// (`ws` is 1 for a point, 0 for padding), in four fixed lanes like
+/// [`moments`]. Leaves each point's kernel weight `w` in `ws`.
+fn cubic_moments(xs: &[f64], ys: &[f64], zs: &[f64], ws: &mut [f64]) -> ([f64; 28], [f64; 10]) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2 (checked just above).
-        return unsafe { cubic_moments_avx2(xs, ys, zs, present) };
+        return unsafe { cubic_moments_avx2(xs, ys, zs, ws) };
     }
-    cubic_moments_lanes(xs, ys, zs, present)
+    cubic_moments_lanes(xs, ys, zs, ws)
 }
 
 /// [`cubic_moments_lanes`] compiled for AVX2 (same operations, same order:
@@ -523,9 +509,9 @@ fn cubic_moments_avx2(
     xs: &[f64],
     ys: &[f64],
     zs: &[f64],
-    present: &[f64],
+    ws: &mut [f64],
 ) -> ([f64; 28], [f64; 10]) {
-    cubic_moments_lanes(xs, ys, zs, present)
+    cubic_moments_lanes(xs, ys, zs, ws)
 }
 
 /// Four lanes of one quantity.
@@ -548,29 +534,30 @@ fn lanes(a: &[f64]) -> Lanes {
     [a[0], a[1], a[2], a[3]]
 }
 
-/// The moments over padded coordinate arrays (`present` is 1 for a point,
-/// 0 for padding); every line of the loop is one vector operation.
+/// The moments over padded coordinate arrays (see [`cubic_moments`]);
+/// every line of the loop is one vector operation.
 #[inline(always)]
 fn cubic_moments_lanes(
     xs: &[f64],
     ys: &[f64],
     zs: &[f64],
-    present: &[f64],
+    ws: &mut [f64],
 ) -> ([f64; 28], [f64; 10]) {
     let mut acc = [[0.0f64; LANES]; 28];
     let mut acc_z = [[0.0f64; LANES]; 10];
-    for (((x, y), z), p) in xs
+    for (((x, y), z), ws) in xs
         .chunks_exact(LANES)
         .zip(ys.chunks_exact(LANES))
         .zip(zs.chunks_exact(LANES))
-        .zip(present.chunks_exact(LANES))
+        .zip(ws.chunks_exact_mut(LANES))
     {
-        let (x, y, z, p) = (lanes(x), lanes(y), lanes(z), lanes(p));
+        let (x, y, z, p) = (lanes(x), lanes(y), lanes(z), lanes(ws));
         let mut w = [0.0; LANES];
         for i in 0..LANES {
             let t = CUBIC_KERNEL * (x[i] * x[i] + y[i] * y[i] + z[i] * z[i]);
             w[i] = p[i] * weight(t);
         }
+        ws.copy_from_slice(&w);
         // `wx[a] = w x^a`, `yp[b] = y^b`; moment (a, b) is their product.
         let mut wx = [[0.0; LANES]; 7];
         let mut yp = [[0.0; LANES]; 7];
@@ -627,7 +614,28 @@ fn cubic_moments_lanes(
 /// when its equations are singular or its height is a spike (the caller
 /// falls back to the quadric).
 fn fit_cubic(local: &[DVec3], s: f64, weights: Option<&mut [f64]>) -> Option<QuadricFit> {
-    let (mo, rz) = cubic_moments(local, 1.0 / s);
+    // Coordinates one array each (structure of arrays), padded to whole
+    // lanes with points of weight 0: the moments are then plain vector
+    // arithmetic, with no shuffles and no partial chunk.
+    let n = local.len();
+    let padded = n.div_ceil(LANES) * LANES;
+    let mut stack = [[0.0f64; STACK_POINTS]; 4];
+    let mut heap = Vec::new();
+    let [xs, ys, zs, ws] = if padded <= STACK_POINTS {
+        stack.each_mut().map(|a| &mut a[..padded])
+    } else {
+        heap.resize(4 * padded, 0.0);
+        let (a, rest) = heap.split_at_mut(padded);
+        let (b, rest) = rest.split_at_mut(padded);
+        let (c, d) = rest.split_at_mut(padded);
+        [a, b, c, d]
+    };
+    let inv_s = 1.0 / s;
+    for (i, l) in local.iter().enumerate() {
+        (xs[i], ys[i], zs[i]) = (l.x * inv_s, l.y * inv_s, l.z * inv_s);
+        ws[i] = 1.0;
+    }
+    let (mo, rz) = cubic_moments(xs, ys, zs, ws);
     let mut ata = [0.0; 55];
     let mut atz = [0.0; 10];
     let mut k = 0;
@@ -644,7 +652,22 @@ fn fit_cubic(local: &[DVec3], s: f64, weights: Option<&mut [f64]>) -> Option<Qua
         return None;
     }
     if let Some(a) = weights {
-        linear_weights(local, 1.0 / s, CUBIC_KERNEL, &CUBIC_BASIS, &ldl, a);
+        // As `linear_weights`, with the kernel weights the moments left.
+        let z = solve_for_constant(&ldl);
+        for (((a, &x), &y), &w) in a.iter_mut().zip(&*xs).zip(&*ys).zip(&*ws) {
+            let (xx, yy) = (x * x, y * y);
+            let phi = z[0] * xx
+                + z[1] * x * y
+                + z[2] * yy
+                + z[3] * x
+                + z[4] * y
+                + z[5]
+                + z[6] * xx * x
+                + z[7] * xx * y
+                + z[8] * x * yy
+                + z[9] * yy * y;
+            *a = w * phi;
+        }
     }
     Some(QuadricFit::from_scaled(&beta, s, FitKind::Cubic))
 }
@@ -931,11 +954,14 @@ mod tests {
             }
             cols[3][n - 1] = 0.0;
             let [xs, ys, zs, present] = &cols;
-            let a = cubic_moments_lanes(xs, ys, zs, present);
+            let mut ws_a = present.clone();
+            let a = cubic_moments_lanes(xs, ys, zs, &mut ws_a);
             #[cfg(target_arch = "x86_64")]
             if std::arch::is_x86_feature_detected!("avx2") {
+                let mut ws_b = present.clone();
                 // SAFETY: AVX2 is present (checked just above).
-                let b = unsafe { cubic_moments_avx2(xs, ys, zs, present) };
+                let b = unsafe { cubic_moments_avx2(xs, ys, zs, &mut ws_b) };
+                assert_eq!(ws_a, ws_b, "{n} points: kernel weights");
                 let bits = |m: &([f64; 28], [f64; 10])| -> Vec<u64> {
                     m.0.iter().chain(&m.1).map(|v| v.to_bits()).collect()
                 };
