@@ -76,7 +76,7 @@ pub fn smooth_passes(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::shapes::{self, Shape};
+    use crate::shapes;
     use crate::smoothing::adaptive::is_refit_pass;
     use crate::smoothing::neighbourhood::push_thinned;
 
