@@ -1,43 +1,73 @@
 //! Fitting neighbourhoods: for each vertex, the neighbours its quadric is
 //! fitted to, in one flat CSR array built once (connectivity never changes,
 //! so neither do the neighbourhoods).
+//!
+//! The lists are the largest arrays of a run (56 neighbours a vertex by
+//! default), so they are stored compressed ([`Neighbourhoods`]): each list
+//! sorted, as 16-bit gaps between consecutive entries. Meshes from voxel
+//! grids, marching cubes and most writers number nearby vertices closely,
+//! so nearly every gap fits; a larger one takes an escape and 32 bits.
 
 use crate::mesh::{RingWalker, Topology};
 use half::f16;
+use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 use std::cell::RefCell;
 use std::ops::Range;
 
 /// Per-vertex neighbour lists in CSR form, stored in the chunks they were
-/// built in (one copy, no concatenation: the lists are the largest arrays of
-/// a run).
+/// built in (one copy, no concatenation).
+///
+/// A list is stored in 16-bit units: its smallest entry in two units (low,
+/// high half), then each following entry (in ascending order) as its gap to
+/// the one before, one unit when the gap is below [`ESCAPE`], else the unit
+/// `ESCAPE` and two units for the gap. Entry `i` starts at a unit of its
+/// own, which is where [`NeighbourWeights`] keeps its weight.
 #[derive(Debug, Clone, Default)]
 pub struct Neighbourhoods {
-    /// `offsets[v]..offsets[v + 1]`: vertex `v`'s entries, counted from the
+    /// `offsets[v]..offsets[v + 1]`: vertex `v`'s units, counted from the
     /// start of its chunk.
     offsets: Vec<u32>,
-    /// Entries of vertices `c * CHUNK..(c + 1) * CHUNK`.
-    chunks: Vec<Vec<u32>>,
+    /// Units of vertices `c * CHUNK..(c + 1) * CHUNK`.
+    chunks: Vec<Vec<u16>>,
 }
 
-/// One weight per entry of a [`Neighbourhoods`] (the linear fit weights of
-/// the adaptive passes), in the same chunks. Half precision (11 significant
-/// bits): the weights are stored for every neighbour of every vertex, and
-/// a weight's rounding moves a vertex by far less than its fit's own error.
+/// The unit announcing a gap too large for one unit.
+const ESCAPE: u16 = u16::MAX;
+
+/// One weight per stored unit of a [`Neighbourhoods`] (the linear fit
+/// weights of the adaptive passes), in the same chunks: entry `i`'s weight
+/// sits at entry `i`'s first unit, the other units' weights are unused.
+/// Half precision (11 significant bits): the weights are stored for every
+/// neighbour of every vertex, and a weight's rounding moves a vertex by far
+/// less than its fit's own error.
 #[derive(Debug, Clone, Default)]
 pub struct NeighbourWeights {
     chunks: Vec<Vec<f16>>,
 }
 
 impl NeighbourWeights {
-    /// The weights of vertex `v`'s neighbours in `hoods` (the lists these
-    /// weights were made for, [`Neighbourhoods::zero_weights`]).
+    /// Vertex `v`'s weights in `hoods` (the lists these weights were made
+    /// for, [`Neighbourhoods::zero_weights`]), one per unit: the weight of
+    /// the entry starting at unit `u` ([`Neighbourhoods::entries`]) is
+    /// element `u`.
     #[inline]
     pub fn get(&self, hoods: &Neighbourhoods, v: usize) -> &[f16] {
         &self.chunks[v / CHUNK][hoods.span(v)]
     }
 
-    /// Every chunk of `CHUNK` vertices with a function giving vertex `v`'s
+    /// Vertex `v`'s weights in `hoods` converted to single precision into
+    /// `out` (cleared first), laid out as [`NeighbourWeights::get`]: one
+    /// vector conversion instead of one per weight.
+    #[inline]
+    pub fn get_f32_into(&self, hoods: &Neighbourhoods, v: usize, out: &mut Vec<f32>) {
+        let w = self.get(hoods, v);
+        out.clear();
+        out.resize(w.len(), 0.0);
+        w.convert_to_f32_slice(out);
+    }
+
+    /// Every chunk of `CHUNK` vertices with a function setting vertex `v`'s
     /// weights (`v` counted in the whole mesh) inside it, for filling the
     /// chunks in parallel.
     pub fn chunks_mut<'a>(
@@ -63,17 +93,79 @@ pub struct ChunkWeights<'a> {
 }
 
 impl ChunkWeights<'_> {
-    /// The weights of vertex `v`, which must lie in this chunk.
-    #[inline]
-    pub fn get_mut(&mut self, v: usize) -> &mut [f16] {
+    /// Sets vertex `v`'s weights, which must lie in this chunk: `by_entry[i]`
+    /// is the weight of its `i`-th neighbour in ascending order (the order of
+    /// [`Neighbourhoods::get_into`]).
+    pub fn set(&mut self, v: usize, by_entry: &[f16]) {
         debug_assert!(v - self.first < CHUNK);
-        &mut self.weights[self.hoods.span(v)]
+        let span = self.hoods.span(v);
+        let units = &mut self.weights[span];
+        units.fill(f16::ZERO);
+        for ((unit, _), &w) in self.hoods.entries(v).zip(by_entry) {
+            units[unit] = w;
+        }
+    }
+}
+
+/// The entries of one stored list with the unit each starts at
+/// ([`Neighbourhoods::entries`]).
+#[derive(Debug, Clone)]
+pub struct Entries<'a> {
+    units: &'a [u16],
+    next: usize,
+    value: u32,
+}
+
+impl Iterator for Entries<'_> {
+    /// `(unit, neighbour)`.
+    type Item = (usize, u32);
+
+    #[inline]
+    fn next(&mut self) -> Option<(usize, u32)> {
+        let at = self.next;
+        let gap = *self.units.get(at)?;
+        if at == 0 {
+            let high = self.units.get(1).copied().unwrap_or(0);
+            self.value = u32::from(gap) | u32::from(high) << 16;
+            self.next = 2;
+        } else if gap != ESCAPE {
+            self.value = self.value.wrapping_add(u32::from(gap));
+            self.next = at + 1;
+        } else {
+            let low = self.units.get(at + 1).copied().unwrap_or(0);
+            let high = self.units.get(at + 2).copied().unwrap_or(0);
+            self.value = self
+                .value
+                .wrapping_add(u32::from(low) | u32::from(high) << 16);
+            self.next = at + 3;
+        }
+        Some((at, self.value))
+    }
+}
+
+/// Appends the sorted, distinct `entries` to `out` in the stored form
+/// ([`Neighbourhoods`]).
+fn encode(entries: &[u32], out: &mut Vec<u16>) {
+    let Some((&first, rest)) = entries.split_first() else {
+        return;
+    };
+    out.extend([first as u16, (first >> 16) as u16]);
+    let mut prev = first;
+    for &e in rest {
+        let gap = e - prev;
+        if gap < u32::from(ESCAPE) {
+            out.push(gap as u16);
+        } else {
+            out.extend([ESCAPE, gap as u16, (gap >> 16) as u16]);
+        }
+        prev = e;
     }
 }
 
 thread_local! {
     static WALKER: RefCell<RingWalker> = RefCell::new(RingWalker::default());
     static LIST: RefCell<Vec<u32>> = const { RefCell::new(Vec::new()) };
+    static UNITS: RefCell<Vec<u16>> = const { RefCell::new(Vec::new()) };
 }
 
 /// Vertices per chunk of stored lists (and per parallel work item when
@@ -81,13 +173,26 @@ thread_local! {
 pub const CHUNK: usize = 1024;
 
 impl Neighbourhoods {
-    /// Neighbours of vertex `v`.
+    /// Vertex `v`'s neighbours in ascending order, each with the unit its
+    /// stored form starts at (see [`NeighbourWeights::get`]).
     #[inline]
-    pub fn get(&self, v: usize) -> &[u32] {
-        &self.chunks[v / CHUNK][self.span(v)]
+    pub fn entries(&self, v: usize) -> Entries<'_> {
+        Entries {
+            units: &self.chunks[v / CHUNK][self.span(v)],
+            next: 0,
+            value: 0,
+        }
     }
 
-    /// Where vertex `v`'s entries lie in its chunk (`v / CHUNK`).
+    /// Writes vertex `v`'s neighbours, in ascending order, to `out`
+    /// (cleared first).
+    #[inline]
+    pub fn get_into(&self, v: usize, out: &mut Vec<u32>) {
+        out.clear();
+        out.extend(self.entries(v).map(|(_, j)| j));
+    }
+
+    /// Where vertex `v`'s units lie in its chunk (`v / CHUNK`).
     #[inline]
     fn span(&self, v: usize) -> Range<usize> {
         let start = self.offsets[v] as usize;
@@ -100,7 +205,7 @@ impl Neighbourhoods {
         start..end
     }
 
-    /// One zero weight per stored entry, laid out like the lists.
+    /// One zero weight per stored unit, laid out like the lists.
     pub fn zero_weights(&self) -> NeighbourWeights {
         NeighbourWeights {
             chunks: self
@@ -121,45 +226,53 @@ impl Neighbourhoods {
         self.len() == 0
     }
 
-    /// Total number of stored neighbour entries.
-    pub fn total(&self) -> usize {
+    /// Total number of stored 16-bit units (the lists' memory is twice
+    /// this in bytes).
+    pub fn units(&self) -> usize {
         self.chunks.iter().map(Vec::len).sum()
     }
 
     /// Builds the lists with `select(v, walker, out)`, which appends vertex
-    /// `v`'s neighbours to `out` using a thread-local [`RingWalker`]. Runs in
-    /// parallel; the result does not depend on the thread count.
+    /// `v`'s neighbours (distinct, in any order) to `out` using a
+    /// thread-local [`RingWalker`]. Runs in parallel; the result does not
+    /// depend on the thread count.
     pub fn build<F>(topo: &Topology, select: F) -> Neighbourhoods
     where
         F: Fn(usize, &mut RingWalker, &mut Vec<u32>) + Sync,
     {
         let n = topo.num_vertices();
-        let built: Vec<(Vec<u32>, Vec<u32>)> = (0..n.div_ceil(CHUNK))
+        let built: Vec<(Vec<u32>, Vec<u16>)> = (0..n.div_ceil(CHUNK))
             .into_par_iter()
             .map(|c| {
                 let range = c * CHUNK..((c + 1) * CHUNK).min(n);
                 let mut starts = Vec::with_capacity(range.len());
-                // Built in a reused thread-local list and copied out at its
+                // Built in reused thread-local lists and copied out at its
                 // exact size: no growing and shrinking of a list per chunk.
-                let out = WALKER.with(|w| {
-                    LIST.with(|out| {
-                        let (mut w, mut out) = (w.borrow_mut(), out.borrow_mut());
-                        out.clear();
-                        for v in range {
-                            starts.push(out.len() as u32);
-                            select(v, &mut w, &mut out);
-                        }
-                        out.to_vec()
+                let units = WALKER.with(|w| {
+                    LIST.with(|list| {
+                        UNITS.with(|units| {
+                            let (mut w, mut list, mut units) =
+                                (w.borrow_mut(), list.borrow_mut(), units.borrow_mut());
+                            units.clear();
+                            for v in range {
+                                starts.push(units.len() as u32);
+                                list.clear();
+                                select(v, &mut w, &mut list);
+                                list.sort_unstable();
+                                encode(&list, &mut units);
+                            }
+                            units.to_vec()
+                        })
                     })
                 });
-                (starts, out)
+                (starts, units)
             })
             .collect();
         let mut offsets = Vec::with_capacity(n + 1);
         let mut chunks = Vec::with_capacity(built.len());
-        for (starts, out) in built {
+        for (starts, units) in built {
             offsets.extend_from_slice(&starts);
-            chunks.push(out);
+            chunks.push(units);
         }
         offsets.push(chunks.last().map_or(0, |c| c.len() as u32));
         Neighbourhoods { offsets, chunks }
@@ -256,11 +369,68 @@ mod tests {
         let hoods = Neighbourhoods::two_ring(&t, 512);
         assert_eq!(hoods.len(), t.num_vertices());
         let mut w = RingWalker::default();
-        let mut total = 0;
+        let mut list = Vec::new();
+        let mut units = 0;
         for v in 0..t.num_vertices() {
-            assert_eq!(hoods.get(v), w.k_ring(&t, v, 2), "vertex {v}");
-            total += hoods.get(v).len();
+            let mut ring = w.k_ring(&t, v, 2).to_vec();
+            ring.sort_unstable();
+            hoods.get_into(v, &mut list);
+            assert_eq!(list, ring, "vertex {v}");
+            // Two units for the first entry, one for each gap (all small).
+            units += list.len() + 1;
         }
-        assert_eq!(hoods.total(), total);
+        assert_eq!(hoods.units(), units);
+    }
+
+    #[test]
+    fn large_gaps_round_trip_through_an_escape() {
+        let list = [
+            0u32,
+            1,
+            65_534,
+            65_535 + 65_534,
+            65_535 + 65_534 + 65_535,
+            u32::MAX,
+        ];
+        let mut units = Vec::new();
+        encode(&list, &mut units);
+        // 2 for the first entry, 1 each for the gaps 1 and 65533 (below the
+        // escape), 3 each for 65535, 65535 and the last gap.
+        assert_eq!(units.len(), 2 + 2 + 3 * 3);
+        let decoded: Vec<(usize, u32)> = Entries {
+            units: &units,
+            next: 0,
+            value: 0,
+        }
+        .collect();
+        assert_eq!(decoded.iter().map(|e| e.1).collect::<Vec<_>>(), list);
+        assert_eq!(
+            decoded.iter().map(|e| e.0).collect::<Vec<_>>(),
+            [0, 2, 3, 4, 7, 10]
+        );
+    }
+
+    #[test]
+    fn weights_follow_their_entries() {
+        let m = grid(6);
+        let t = Topology::build(&m);
+        let hoods = Neighbourhoods::two_ring(&t, 512);
+        let mut weights = hoods.zero_weights();
+        let v = 24;
+        let mut list = Vec::new();
+        hoods.get_into(v, &mut list);
+        let by_entry: Vec<f16> = (0..list.len()).map(|i| f16::from_f32(i as f32)).collect();
+        for mut chunk in weights.chunks_mut(&hoods) {
+            chunk.set(v, &by_entry);
+        }
+        let stored = weights.get(&hoods, v);
+        let mut as_f32 = Vec::new();
+        weights.get_f32_into(&hoods, v, &mut as_f32);
+        for (i, (unit, j)) in hoods.entries(v).enumerate() {
+            assert_eq!(j, list[i]);
+            assert_eq!(stored[unit], by_entry[i]);
+            assert_eq!(as_f32[unit], i as f32);
+        }
+        assert!(weights.get(&hoods, v + 1).iter().all(|w| *w == f16::ZERO));
     }
 }

@@ -94,6 +94,8 @@ pub fn fit_pass(
         .enumerate()
         .map(|(c, ((out, mut hk), mut weights))| {
             let mut stats = FitStats::default();
+            // Scratch for one vertex: its decoded list and fit weights.
+            let (mut list, mut slot_weights) = (Vec::new(), Vec::new());
             for (i, o) in out.iter_mut().enumerate() {
                 let v = c * CHUNK + i;
                 let p = positions[v];
@@ -101,11 +103,10 @@ pub fn fit_pass(
                 if let Some(hk) = hk.as_deref_mut() {
                     hk[i] = (0.0, 0.0);
                 }
-                let w = weights.as_mut().map(|w| w.get_mut(v));
                 let n = normals[v].as_dvec3().normalize_or_zero();
                 if !movable[v] || n == DVec3::ZERO {
-                    if let Some(w) = w {
-                        w.fill(f16::ZERO);
+                    if let Some(w) = weights.as_mut() {
+                        w.set(v, &[]);
                     }
                     continue;
                 }
@@ -120,16 +121,22 @@ pub fn fit_pass(
                     min_cos,
                 };
                 let frame = Frame::new(p, n);
-                let fit = match w {
-                    Some(w) => fit_neighbours_weighted(
-                        &frame,
-                        positions,
-                        hoods.get(v),
-                        model,
-                        Some(facing),
-                        w,
-                    ),
-                    None => fit_neighbours(&frame, positions, hoods.get(v), model, Some(facing)),
+                hoods.get_into(v, &mut list);
+                let fit = match weights.as_mut() {
+                    Some(w) => {
+                        slot_weights.resize(list.len(), f16::ZERO);
+                        let fit = fit_neighbours_weighted(
+                            &frame,
+                            positions,
+                            &list,
+                            model,
+                            Some(facing),
+                            &mut slot_weights,
+                        );
+                        w.set(v, &slot_weights);
+                        fit
+                    }
+                    None => fit_neighbours(&frame, positions, &list, model, Some(facing)),
                 };
                 match fit.kind {
                     FitKind::Cubic => stats.cubic += 1,
@@ -166,28 +173,33 @@ pub fn weighted_pass(
     movable: &[bool],
     out: &mut [DVec3],
 ) -> FitStats {
-    out.par_iter_mut()
+    out.par_chunks_mut(CHUNK)
         .enumerate()
-        .with_min_len(CHUNK)
-        .map(|(v, o)| {
-            let p = positions[v];
-            *o = p;
+        .map(|(c, out)| {
             let mut stats = FitStats::default();
-            if !movable[v] {
-                return stats;
+            let mut w = Vec::new();
+            for (i, o) in out.iter_mut().enumerate() {
+                let v = c * CHUNK + i;
+                let p = positions[v];
+                *o = p;
+                if !movable[v] {
+                    continue;
+                }
+                let n = vertex_normal(mesh, topo, positions, v);
+                weights.get_f32_into(hoods, v, &mut w);
+                let mut d = DVec3::ZERO;
+                for (unit, j) in hoods.entries(v) {
+                    let a = w.get(unit).copied().unwrap_or(0.0);
+                    d += f64::from(a) * (positions[j as usize] - p);
+                }
+                let g = d.dot(n);
+                if g.abs() > MAX_STEP * mean_edge_at(topo, mesh.positions(), v) || !g.is_finite() {
+                    stats.clamped += 1;
+                    continue;
+                }
+                *o = p + g * n;
+                stats.max_displacement = stats.max_displacement.max(g.abs());
             }
-            let n = vertex_normal(mesh, topo, positions, v);
-            let mut d = DVec3::ZERO;
-            for (&j, &a) in hoods.get(v).iter().zip(weights.get(hoods, v)) {
-                d += f64::from(a.to_f32()) * (positions[j as usize] - p);
-            }
-            let g = d.dot(n);
-            if g.abs() > MAX_STEP * mean_edge_at(topo, mesh.positions(), v) || !g.is_finite() {
-                stats.clamped += 1;
-                return stats;
-            }
-            *o = p + g * n;
-            stats.max_displacement = g.abs();
             stats
         })
         .reduce(FitStats::default, FitStats::merge)
@@ -233,10 +245,12 @@ mod tests {
         let topo = Topology::build(&mesh);
         let hoods = Neighbourhoods::two_ring(&topo, 64);
         let centre = 12;
-        let target = hoods.get(centre)[0] as usize;
+        let mut list = Vec::new();
+        hoods.get_into(centre, &mut list);
+        let target = list[0] as usize;
         let mut weights = hoods.zero_weights();
         for mut chunk in weights.chunks_mut(&hoods) {
-            chunk.get_mut(centre)[0] = f16::ONE;
+            chunk.set(centre, &[f16::ONE]);
         }
         let movable = vec![true; mesh.num_vertices()];
         let mut out = vec![DVec3::ZERO; mesh.num_vertices()];
