@@ -403,7 +403,7 @@ fn stl_soups_are_welded_and_keep_their_vertices() {
     ]);
     assert_eq!(code(&out), 0, "{}", stderr(&out));
     let report = read_report(&report);
-    assert_eq!(report["schema_version"], "1.2");
+    assert_eq!(report["schema_version"], "2.0");
     assert_eq!(report["mesh"]["vertices"], mesh.num_vertices());
     assert_eq!(report["mesh"]["file_vertices"], file_vertices);
     assert_eq!(report["mesh"]["closed"], true);

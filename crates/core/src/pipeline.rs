@@ -9,15 +9,14 @@ use crate::report::{
 };
 use crate::report::{QualityReport, StageMeasures};
 use crate::smoothing::adaptive::{
-    AdaptiveNeighbourhoods, BEAM_WIDTH, GrowthRule, adaptive_neighbourhoods, agreement_masks,
-    is_refit_pass,
+    AdaptiveNeighbourhoods, GrowthRule, adaptive_neighbourhoods, agreement_masks, is_refit_pass,
 };
-use crate::smoothing::curvature::{curvature_at, vertex_curvatures};
+use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
 use crate::smoothing::initial::smooth_passes;
 use crate::smoothing::label::{Label, label};
-use crate::smoothing::neighbourhood::{Neighbourhoods, push_thinned};
+use crate::smoothing::neighbourhood::Neighbourhoods;
 use crate::smoothing::normals::vertex_normals_f32;
-use crate::smoothing::project::{Curvatures, FitStats};
+use crate::smoothing::project::FitStats;
 use crate::smoothing::quadric_fit::FitModel;
 use crate::smoothing::volume::restore_volume;
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
@@ -104,9 +103,10 @@ pub struct PerVertex {
     /// Label of Table 2 (0 flat, 1 minimal, 2 convex, 3 concave); empty for
     /// baseline methods.
     pub label: Vec<u8>,
-    /// Mean curvature `H` from the last fit (outward normals: convex < 0).
+    /// Mean curvature `H` of the output, from 2-ring quadric fits (outward
+    /// normals: convex < 0).
     pub mean_curvature: Vec<f64>,
-    /// Gaussian curvature `K` from the last fit.
+    /// Gaussian curvature `K` of the output, from the same fits.
     pub gaussian_curvature: Vec<f64>,
     /// Distance each vertex moved.
     pub displacement: Vec<f64>,
@@ -154,7 +154,7 @@ pub struct WangYuRun {
     pub initial: StageMeasures,
     /// Positions after adaptive smoothing (and volume restoration).
     pub adaptive: Vec<DVec3>,
-    /// `(H, K)` per vertex from the last fits.
+    /// `(H, K)` per vertex of `adaptive`, from 2-ring quadric fits.
     pub curvature: Curvatures,
     /// Label per vertex (from the curvature after initial smoothing).
     pub labels: Vec<Label>,
@@ -175,12 +175,9 @@ pub struct WangYuRun {
 
 /// Initial smoothing, labelling and adaptive smoothing with volume
 /// restoration (paper sections 2.2-2.3), without the quality fixes.
-/// `two_ring` is [`Neighbourhoods::two_ring`] of `topo` with
-/// `params.max_fit_points`; it is dropped once initial smoothing is done.
 pub fn wang_yu(
     mesh: &Mesh,
     topo: &Topology,
-    two_ring: Neighbourhoods,
     movable: &[bool],
     params: &Params,
     progress: &dyn Progress,
@@ -192,7 +189,8 @@ pub fn wang_yu(
     let t = Instant::now();
     let mut positions = mesh.positions().to_vec();
     let passes = params.initial_passes;
-    let (initial_fits, _) = smooth_passes(
+    let two_ring = Neighbourhoods::two_ring(topo, max_points);
+    let initial_fits = smooth_passes(
         mesh,
         topo,
         &mut positions,
@@ -223,20 +221,13 @@ pub fn wang_yu(
     // The curvature rings are used once: walked and fitted vertex by
     // vertex, never stored (as lists they would be the run's peak memory).
     let facing_normals = vertex_normals_f32(mesh, topo, &positions);
-    let hk = Neighbourhoods::map(
+    let hk = vertex_curvatures(
         topo,
-        |v, w, out| {
-            w.start(topo, v);
-            for r in 0..params.curvature_ring {
-                let beam = if r < 2 { usize::MAX } else { BEAM_WIDTH };
-                if w.grow_beam(topo, beam).is_empty() {
-                    w.discard_last();
-                    break;
-                }
-            }
-            push_thinned(w, max_points, max_points / 2, out);
-        },
-        |v, hood| curvature_at(topo, &positions, &facing_normals, v, hood, min_cos),
+        &positions,
+        &facing_normals,
+        params.curvature_ring,
+        max_points,
+        min_cos,
     );
 
     let l = mean_edge_length(mesh, &positions);
@@ -259,9 +250,7 @@ pub fn wang_yu(
         label_disagreement: params.label_disagreement,
     };
     let agreement = agreement_masks(&hk, &rule);
-    // The labelling curvature is the result only when no adaptive pass
-    // runs; otherwise it goes before growth allocates the neighbourhoods.
-    let label_curvature = (params.adaptive_passes == 0).then_some(hk);
+    drop(hk);
     let AdaptiveNeighbourhoods { hoods, ring } = adaptive_neighbourhoods(
         topo,
         &positions,
@@ -278,7 +267,7 @@ pub fn wang_yu(
 
     let t = Instant::now();
     let passes = params.adaptive_passes;
-    let (adaptive_fits, hk_last) = smooth_passes(
+    let adaptive_fits = smooth_passes(
         mesh,
         topo,
         &mut positions,
@@ -294,7 +283,7 @@ pub fn wang_yu(
         cancel,
         |p| progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64),
     )?;
-    let curvature = hk_last.or(label_curvature).unwrap_or_default();
+    drop(hoods);
     let mut volume_offset = 0.0;
     let mut volume_not_restored = None;
     if params.preserve_volume && topo.num_boundary_edges() == 0 {
@@ -316,6 +305,9 @@ pub fn wang_yu(
         }
     }
     timings_ms.push((Stage::Adaptive, ms(t)));
+    let t = Instant::now();
+    let curvature = stage_curvature(mesh, topo, &positions, params);
+    timings_ms.push((Stage::Report, ms(t)));
     Ok(WangYuRun {
         initial,
         adaptive: positions,
@@ -328,6 +320,26 @@ pub fn wang_yu(
         volume_not_restored,
         timings_ms,
     })
+}
+
+/// The curvature a stage reports (and the runs' per-vertex result): from
+/// quadric fits to every vertex's 2-ring, the same estimator for the input
+/// and the output, so their curvature variations compare.
+fn stage_curvature(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &[DVec3],
+    params: &Params,
+) -> Curvatures {
+    let normals = vertex_normals_f32(mesh, topo, positions);
+    vertex_curvatures(
+        topo,
+        positions,
+        &normals,
+        2,
+        params.max_fit_points as usize,
+        params.min_normal_cos(),
+    )
 }
 
 fn ms(t: Instant) -> f64 {
@@ -359,9 +371,7 @@ pub fn run(
     progress.update(Stage::Analyse, 0.0);
     let topo = Topology::build(mesh);
     let movable = movable_mask(&topo, params.boundary);
-    let two_ring = Neighbourhoods::two_ring(&topo, params.max_fit_points as usize);
-    let (input_curvature, _) =
-        vertex_curvatures(mesh, &topo, input, &two_ring, params.min_normal_cos());
+    let input_curvature = stage_curvature(mesh, &topo, input, params);
     let mut report = QualityReport::new(mesh_statistics(mesh, &topo), Reproducibility::new(params));
     report.stages.input = Some(measure_stage(
         mesh,
@@ -378,11 +388,11 @@ pub fn run(
 
     // Set when the adaptive stage already reported an unrestored volume.
     let mut volume_warned = false;
-    let (mut positions, curvature, labels) = match params.method {
+    let (mut positions, labels) = match params.method {
         Method::WangYu => {
             let r = {
                 let _s = tracing::info_span!("wang_yu").entered();
-                wang_yu(mesh, &topo, two_ring, &movable, params, progress, cancel)?
+                wang_yu(mesh, &topo, &movable, params, progress, cancel)?
             };
             let t = Instant::now();
             report.stages.initial = Some(r.initial);
@@ -414,10 +424,9 @@ pub fn run(
             timings.extend(r.timings_ms.iter().copied());
             timings.push((Stage::Report, ms(t)));
             let labels = r.labels.iter().map(|&l| l as u8).collect();
-            (r.adaptive, r.curvature, labels)
+            (r.adaptive, labels)
         }
         Method::Laplacian | Method::Taubin => {
-            drop(two_ring);
             let t = Instant::now();
             let positions = {
                 let _s = tracing::info_span!("baseline").entered();
@@ -427,7 +436,7 @@ pub fn run(
             report.stages.initial = Some(measure_stage(
                 mesh, &topo, &positions, input, None, fraction,
             ));
-            (positions, Vec::new(), Vec::new())
+            (positions, Vec::new())
         }
     };
     check(cancel)?;
@@ -471,13 +480,13 @@ pub fn run(
     check(cancel)?;
 
     let t = Instant::now();
-    let final_curvature = (!curvature.is_empty()).then_some(curvature.as_slice());
+    let curvature = stage_curvature(mesh, &topo, &positions, params);
     report.stages.final_stage = Some(measure_stage(
         mesh,
         &topo,
         &positions,
         input,
-        final_curvature,
+        Some(&curvature),
         fraction,
     ));
     timings.push((Stage::Report, ms(t)));
@@ -553,14 +562,7 @@ pub fn run(
 /// curvature from 2-ring fits) and the mesh statistics.
 pub fn measure(mesh: &Mesh, params: &Params) -> QualityReport {
     let topo = Topology::build(mesh);
-    let two_ring = Neighbourhoods::two_ring(&topo, params.max_fit_points as usize);
-    let (curvature, _) = vertex_curvatures(
-        mesh,
-        &topo,
-        mesh.positions(),
-        &two_ring,
-        params.min_normal_cos(),
-    );
+    let curvature = stage_curvature(mesh, &topo, mesh.positions(), params);
     let mut report = QualityReport::new(mesh_statistics(mesh, &topo), Reproducibility::new(params));
     report.stages.input = Some(measure_stage(
         mesh,

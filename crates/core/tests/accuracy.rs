@@ -90,6 +90,51 @@ fn smoothing_moves_the_voxel_sphere_much_closer() {
 }
 
 #[test]
+fn reported_curvature_is_the_spheres_and_its_variation_drops() {
+    // The input and every later stage use the same 2-ring estimator, so the
+    // input's staircase shows as a large variation and the smoothed sphere's
+    // as a small one; the per-vertex mean curvature is about -1/r (convex,
+    // outward normals).
+    let r = 12.0;
+    let (_, m) = shapes::voxel_sphere(r);
+    let variation = |out: &SmoothOutput, stage: &str| {
+        let s = &out.report.stages;
+        let measures = match stage {
+            "input" => s.input.as_ref(),
+            "adaptive" => s.adaptive.as_ref(),
+            _ => s.final_stage.as_ref(),
+        };
+        measures
+            .and_then(|m| m.curvature_variation.as_ref())
+            .unwrap_or_else(|| panic!("{stage} has a curvature variation"))
+            .mean_scaled
+    };
+    let out = smooth(&m);
+    let h = &out.per_vertex.mean_curvature;
+    assert_eq!(h.len(), m.num_vertices());
+    let mean = h.iter().sum::<f64>() / h.len() as f64;
+    assert!((mean * r + 1.0).abs() < 0.03, "mean H {mean} vs -1/{r}");
+    let spread = (h.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / h.len() as f64).sqrt();
+    assert!(spread < 0.05 / r, "H spread {spread}");
+    let input = variation(&out, "input");
+    assert!(variation(&out, "adaptive") < 0.01 * input);
+    assert!(variation(&out, "final") < 0.01 * input);
+
+    // A baseline reports the same measure for its output: Taubin keeps
+    // much more of the staircase than the adaptive fits.
+    let params = Params {
+        method: meshsmooth_core::params::Method::Taubin,
+        ..Params::default()
+    };
+    let taubin = run(&m, &params, &NoProgress, &AtomicBool::new(false)).expect("runs");
+    let (wang_yu, baseline) = (variation(&out, "final"), variation(&taubin, "final"));
+    assert!(
+        baseline < input && wang_yu < 0.1 * baseline,
+        "{wang_yu} vs {baseline}"
+    );
+}
+
+#[test]
 fn output_is_identical_with_one_and_two_threads() {
     let (_, m) = shapes::voxel_torus(10.0, 4.0);
     let run_with = |threads| {

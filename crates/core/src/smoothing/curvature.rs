@@ -3,44 +3,52 @@
 //! [`QuadricFit::curvature`](super::quadric_fit::QuadricFit::curvature);
 //! this file estimates them for a whole mesh without moving it.
 
+use super::adaptive::BEAM_WIDTH;
 use super::frame::Frame;
-use super::neighbourhood::Neighbourhoods;
-use super::project::{Curvatures, FitStats, fit_pass};
+use super::neighbourhood::{Neighbourhoods, push_thinned};
 use super::quadric_fit::{Facing, FitModel, fit_neighbours};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::{DVec3, Vec3};
 
-/// `(H, K)` at every vertex from a quadric fit to its neighbourhood in `positions`
-/// (0 where the vertex has no usable normal or is not fitted); neighbours
-/// facing away by a cosine below `min_cos` are left out.
+/// Per-vertex curvature `(H, K)`.
+pub type Curvatures = Vec<(f64, f64)>;
+
+/// `(H, K)` at every vertex of `positions` from a quadric fit to its
+/// `rings`-ring, thinned to at most `max_points` (inner rings kept whole
+/// while they hold half of them, [`push_thinned`]); rings beyond the second
+/// are walked as in growth (a sample of [`BEAM_WIDTH`] vertices expanded per
+/// ring). 0 where the vertex has no usable normal; boundary vertices fit a
+/// plane ([`curvature_at`]). `normals` are the unit vertex normals of
+/// `positions` ([`vertex_normals_f32`](super::normals::vertex_normals_f32));
+/// neighbours facing away by a cosine below `min_cos` are left out. The
+/// rings are walked and fitted vertex by vertex, never stored.
 pub fn vertex_curvatures(
-    mesh: &Mesh,
     topo: &Topology,
     positions: &[DVec3],
-    hoods: &Neighbourhoods,
+    normals: &[Vec3],
+    rings: u32,
+    max_points: usize,
     min_cos: f64,
-) -> (Curvatures, FitStats) {
-    let n = positions.len();
-    let mut scratch = vec![DVec3::ZERO; n];
-    let mut hk = vec![(0.0, 0.0); n];
-    let all = vec![true; n];
-    let stats = fit_pass(
-        mesh,
+) -> Curvatures {
+    Neighbourhoods::map(
         topo,
-        positions,
-        hoods,
-        &all,
-        FitModel::Quadric,
-        min_cos,
-        &mut scratch,
-        Some(&mut hk),
-        None,
-    );
-    (hk, stats)
+        |v, w, out| {
+            w.start(topo, v);
+            for r in 0..rings {
+                let beam = if r < 2 { usize::MAX } else { BEAM_WIDTH };
+                if w.grow_beam(topo, beam).is_empty() {
+                    w.discard_last();
+                    break;
+                }
+            }
+            push_thinned(w, max_points, max_points / 2, out);
+        },
+        |v, hood| curvature_at(topo, positions, normals, v, hood, min_cos),
+    )
 }
 
 /// `(H, K)` at vertex `v` from a quadric fit to `hood` in `positions`,
-/// exactly as [`vertex_curvatures`] computes it: 0 where the vertex has no
+/// as [`vertex_curvatures`] computes it: 0 where the vertex has no
 /// normal, and 0 at boundary vertices (they fit a plane). `normals` are the
 /// unit vertex normals of `positions`
 /// ([`vertex_normals_f32`](super::normals::vertex_normals_f32)).

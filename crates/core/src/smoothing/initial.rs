@@ -2,7 +2,7 @@
 //! fits over the fixed 2-ring of every vertex.
 
 use super::neighbourhood::Neighbourhoods;
-use super::project::{Curvatures, FitStats, fit_pass, weighted_pass};
+use super::project::{FitStats, fit_pass, weighted_pass};
 use super::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
 use crate::pipeline::{Cancelled, check};
@@ -10,11 +10,10 @@ use glam::DVec3;
 use std::sync::atomic::AtomicBool;
 
 /// Runs `passes` passes over `hoods` starting from `positions` (updated in
-/// place). Pass `p` fits anew when `refit(p)` holds (always the last pass);
+/// place). Pass `p` fits anew when `refit(p)` holds (always the first pass);
 /// the others are [`weighted_pass`]es with the weights of the latest fit.
-/// Returns the summed fit statistics and the curvature of the last pass's
-/// fits (before its projection), or `None` when `passes == 0`.
-/// `model` and `min_cos` are [`fit_pass`]'s.
+/// Returns the summed fit statistics. `model` and `min_cos` are
+/// [`fit_pass`]'s.
 #[allow(clippy::too_many_arguments)]
 pub fn smooth_passes(
     mesh: &Mesh,
@@ -28,16 +27,13 @@ pub fn smooth_passes(
     refit: impl Fn(u32) -> bool,
     cancel: &AtomicBool,
     mut on_pass: impl FnMut(u32),
-) -> Result<(FitStats, Option<Curvatures>), Cancelled> {
-    let n = positions.len();
-    let mut next = vec![DVec3::ZERO; n];
-    let last = passes.saturating_sub(1);
-    let refits = |p: u32| p == 0 || p == last || refit(p);
+) -> Result<FitStats, Cancelled> {
+    let mut next = vec![DVec3::ZERO; positions.len()];
+    let refits = |p: u32| p == 0 || refit(p);
     // Weights are kept only when some pass reuses them.
     let mut weights = (0..passes)
         .any(|p| !refits(p))
         .then(|| hoods.zero_weights());
-    let mut hk = Vec::new();
     let mut stats = FitStats::default();
     for pass in 0..passes {
         check(cancel)?;
@@ -47,11 +43,6 @@ pub fn smooth_passes(
             }
             _ => {
                 let reused = pass + 1 < passes && !refits(pass + 1);
-                if pass == last {
-                    // Free the weights before the curvature is allocated.
-                    weights = None;
-                    hk = vec![(0.0, 0.0); n];
-                }
                 fit_pass(
                     mesh,
                     topo,
@@ -61,7 +52,6 @@ pub fn smooth_passes(
                     model,
                     min_cos,
                     &mut next,
-                    (pass == last).then_some(&mut hk[..]),
                     weights.as_mut().filter(|_| reused),
                 )
             }
@@ -70,7 +60,7 @@ pub fn smooth_passes(
         std::mem::swap(positions, &mut next);
         on_pass(pass + 1);
     }
-    Ok((stats, (passes > 0).then_some(hk)))
+    Ok(stats)
 }
 
 #[cfg(test)]
@@ -112,7 +102,7 @@ mod tests {
         .expect("not cancelled");
         let run = |refit: &dyn Fn(u32) -> bool| {
             let mut p = start.clone();
-            let (stats, hk) = smooth_passes(
+            let stats = smooth_passes(
                 &mesh,
                 &topo,
                 &mut p,
@@ -126,14 +116,14 @@ mod tests {
                 |_| {},
             )
             .expect("not cancelled");
-            (p, stats, hk.expect("passes ran"))
+            (p, stats)
         };
-        let (every, every_stats, every_hk) = run(&|_| true);
-        let (reused, reused_stats, reused_hk) = run(&is_refit_pass);
-        // Passes 0, 4, 12 and 13 fit; the other ten reuse weights.
+        let (every, every_stats) = run(&|_| true);
+        let (reused, reused_stats) = run(&is_refit_pass);
+        // Passes 0, 4 and 12 fit; the other eleven reuse weights.
         let fits = |s: &FitStats| s.cubic + s.quadric + s.plane_fallback + s.fixed_fallback;
         assert_eq!(fits(&every_stats), 14 * mesh.num_vertices() as u64);
-        assert_eq!(fits(&reused_stats), 4 * mesh.num_vertices() as u64);
+        assert_eq!(fits(&reused_stats), 3 * mesh.num_vertices() as u64);
         assert_ne!(every, reused, "the reused weights were not used");
         let max_diff = every
             .iter()
@@ -150,9 +140,5 @@ mod tests {
             (rms_every - rms_reused).abs() < 0.002,
             "{rms_every} vs {rms_reused}"
         );
-        // The last pass fits, so its curvature is reported: close to 1 / r.
-        let h = |hk: &[(f64, f64)]| hk.iter().map(|c| c.0).sum::<f64>() / hk.len() as f64;
-        assert!((h(&every_hk) - h(&reused_hk)).abs() < 1e-3);
-        assert!((h(&reused_hk).abs() - 1.0 / sphere.radius).abs() < 0.01);
     }
 }

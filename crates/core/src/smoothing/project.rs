@@ -53,17 +53,13 @@ impl FitStats {
     }
 }
 
-/// Per-vertex curvature `(H, K)` from the fits of a pass.
-pub type Curvatures = Vec<(f64, f64)>;
-
 /// One Jacobi pass: fits `model` to every movable vertex's neighbourhood in
 /// `positions` and writes the projected positions to `out` (immovable
 /// vertices are copied; movable boundary vertices fit a plane). Neighbours
 /// whose normal makes a cosine below `min_cos` with the vertex's are left
 /// out of its fit ([`Facing`]).
-/// With `curvature`, writes per vertex the curvature of its fit (0 where it
-/// was not fitted); with `weights` (made by `hoods`), each fit's linear
-/// weights ([`fit_neighbours_weighted`]) for [`weighted_pass`].
+/// With `weights` (made by `hoods`), writes each fit's linear weights
+/// ([`fit_neighbours_weighted`]) for [`weighted_pass`].
 /// Returns the fit statistics.
 #[allow(clippy::too_many_arguments)]
 pub fn fit_pass(
@@ -75,24 +71,18 @@ pub fn fit_pass(
     model: FitModel,
     min_cos: f64,
     out: &mut [DVec3],
-    curvature: Option<&mut [(f64, f64)]>,
     weights: Option<&mut NeighbourWeights>,
 ) -> FitStats {
     let normals = vertex_normals_f32(mesh, topo, positions);
     let chunks = out.len().div_ceil(CHUNK);
-    let curvature: Vec<Option<&mut [(f64, f64)]>> = match curvature {
-        Some(c) => c.chunks_mut(CHUNK).map(Some).collect(),
-        None => (0..chunks).map(|_| None).collect(),
-    };
     let weights: Vec<Option<ChunkWeights>> = match weights {
         Some(w) => w.chunks_mut(hoods).map(Some).collect(),
         None => (0..chunks).map(|_| None).collect(),
     };
     out.par_chunks_mut(CHUNK)
-        .zip(curvature)
         .zip(weights)
         .enumerate()
-        .map(|(c, ((out, mut hk), mut weights))| {
+        .map(|(c, (out, mut weights))| {
             let mut stats = FitStats::default();
             // Scratch for one vertex: its decoded list and fit weights.
             let (mut list, mut slot_weights) = (Vec::new(), Vec::new());
@@ -100,9 +90,6 @@ pub fn fit_pass(
                 let v = c * CHUNK + i;
                 let p = positions[v];
                 *o = p;
-                if let Some(hk) = hk.as_deref_mut() {
-                    hk[i] = (0.0, 0.0);
-                }
                 let n = normals[v].as_dvec3().normalize_or_zero();
                 if !movable[v] || n == DVec3::ZERO {
                     if let Some(w) = weights.as_mut() {
@@ -143,9 +130,6 @@ pub fn fit_pass(
                     FitKind::Quadric => stats.quadric += 1,
                     FitKind::Plane => stats.plane_fallback += 1,
                     FitKind::Fixed => stats.fixed_fallback += 1,
-                }
-                if let Some(hk) = hk.as_deref_mut() {
-                    hk[i] = fit.curvature();
                 }
                 *o = p + step(topo, positions, v, fit.height(), &mut stats) * n;
             }
