@@ -47,12 +47,12 @@ pub const WHOLE_INNER_DIVISOR: usize = 4;
 pub const FIRST_REFIT_GAP: u32 = 4;
 
 /// True when adaptive pass `pass` (from 0) fits anew: passes 0, 4, 12, 28,
-/// ... The others reuse the latest fit's linear weights. Measured
+/// ... ([`smooth_passes`](super::initial::smooth_passes) adds the last
+/// pass). The others reuse the latest fit's linear weights. Measured
 /// (`examples/accuracy.rs`, 22 passes, RMS on the voxel sphere r=12, torus,
 /// ellipsoid, sphere r=40): refitting every pass 0.0330, 0.0426, 0.0407,
-/// 0.0204; this schedule (3 refits) 0.0331, 0.0429, 0.0409, 0.0205, the
-/// same as with a fourth refit at the last pass; refits at the first and
-/// last pass only 0.0336, 0.0441, 0.0414, 0.0208. The
+/// 0.0204; this schedule (4 refits) 0.0331, 0.0429, 0.0409, 0.0205; refits
+/// at the first and last pass only 0.0336, 0.0441, 0.0414, 0.0208. The
 /// largest difference in a vertex's position between every pass and this
 /// schedule, on the torus without volume restoration, is 0.002 voxel. A
 /// refit costs about 9 weighted passes.

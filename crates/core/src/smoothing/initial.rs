@@ -10,8 +10,12 @@ use glam::DVec3;
 use std::sync::atomic::AtomicBool;
 
 /// Runs `passes` passes over `hoods` starting from `positions` (updated in
-/// place). Pass `p` fits anew when `refit(p)` holds (always the first pass);
-/// the others are [`weighted_pass`]es with the weights of the latest fit.
+/// place). Pass `p` fits anew when `refit(p)` holds, and always at the
+/// first and the last pass; the others are [`weighted_pass`]es with the
+/// weights of the latest fit. The last pass refits so the result lies on
+/// fits made for it: on real meshes whose fits are poor (thin tubes,
+/// non-manifold parts), passes on reused weights drift (the neuron of the
+/// real-mesh sweep gains 15% in volume instead of 10% without it).
 /// Returns the summed fit statistics. `model` and `min_cos` are
 /// [`fit_pass`]'s.
 #[allow(clippy::too_many_arguments)]
@@ -29,7 +33,8 @@ pub fn smooth_passes(
     mut on_pass: impl FnMut(u32),
 ) -> Result<FitStats, Cancelled> {
     let mut next = vec![DVec3::ZERO; positions.len()];
-    let refits = |p: u32| p == 0 || refit(p);
+    let last = passes.saturating_sub(1);
+    let refits = |p: u32| p == 0 || p == last || refit(p);
     // Weights are kept only when some pass reuses them.
     let mut weights = (0..passes)
         .any(|p| !refits(p))
@@ -120,10 +125,10 @@ mod tests {
         };
         let (every, every_stats) = run(&|_| true);
         let (reused, reused_stats) = run(&is_refit_pass);
-        // Passes 0, 4 and 12 fit; the other eleven reuse weights.
+        // Passes 0, 4, 12 and 13 fit; the other ten reuse weights.
         let fits = |s: &FitStats| s.cubic + s.quadric + s.plane_fallback + s.fixed_fallback;
         assert_eq!(fits(&every_stats), 14 * mesh.num_vertices() as u64);
-        assert_eq!(fits(&reused_stats), 3 * mesh.num_vertices() as u64);
+        assert_eq!(fits(&reused_stats), 4 * mesh.num_vertices() as u64);
         assert_ne!(every, reused, "the reused weights were not used");
         let max_diff = every
             .iter()
