@@ -84,7 +84,11 @@ impl RingWalker {
             // Branch-free marking: whether a neighbour is new is close to a
             // coin toss, so a branch on it would mispredict half the time.
             let nb = topo.neighbors(u);
-            self.found.resize(end + nb.len(), 0);
+            if self.found.len() < end + nb.len() {
+                // With room for a few more expansions: one resize a ring,
+                // not one per expanded vertex.
+                self.found.resize(end + nb.len() + 64, 0);
+            }
             for &w in nb {
                 let stamp = &mut self.stamp[w as usize];
                 let fresh = *stamp != g;
