@@ -230,6 +230,7 @@ pub fn wang_yu(
         min_cos,
     );
 
+    eprintln!("TT curvature map {:.1}", ms(t));
     let l = mean_edge_length(mesh, &positions);
     let labels: Vec<Label> = hk
         .iter()
@@ -260,6 +261,7 @@ pub fn wang_yu(
         &facing_normals,
         rule,
     );
+    eprintln!("TT growth done {:.1}", ms(t));
     // Free what growth needed before the passes allocate theirs.
     drop((h_scaled, facing_normals, agreement));
     timings_ms.push((Stage::Label, ms(t)));

@@ -93,16 +93,26 @@ pub struct ChunkWeights<'a> {
 }
 
 impl ChunkWeights<'_> {
-    /// Sets vertex `v`'s weights, which must lie in this chunk: `by_entry[i]`
-    /// is the weight of its `i`-th neighbour in ascending order (the order of
-    /// [`Neighbourhoods::get_into`]).
-    pub fn set(&mut self, v: usize, by_entry: &[f16]) {
+    /// Sets vertex `v`'s weights, which must lie in this chunk, rounded to
+    /// half precision: `by_entry[i]` is the weight of its `i`-th neighbour
+    /// in ascending order (the order of [`Neighbourhoods::get_into`]);
+    /// missing ones are 0.
+    pub fn set(&mut self, v: usize, by_entry: &[f32]) {
         debug_assert!(v - self.first < CHUNK);
         let span = self.hoods.span(v);
         let units = &mut self.weights[span];
         units.fill(f16::ZERO);
+        if let ([first, _, rest @ ..], [w0, by_rest @ ..]) = (&mut *units, by_entry)
+            && rest.len() == by_rest.len()
+        {
+            // No escape: entry `i > 0` is unit `i + 1`; one vector
+            // conversion.
+            *first = f16::from_f32(*w0);
+            rest.convert_from_f32_slice(by_rest);
+            return;
+        }
         for ((unit, _), &w) in self.hoods.entries(v).zip(by_entry) {
-            units[unit] = w;
+            units[unit] = f16::from_f32(w);
         }
     }
 }
@@ -419,7 +429,7 @@ mod tests {
         let v = 24;
         let mut list = Vec::new();
         hoods.get_into(v, &mut list);
-        let by_entry: Vec<f16> = (0..list.len()).map(|i| f16::from_f32(i as f32)).collect();
+        let by_entry: Vec<f32> = (0..list.len()).map(|i| i as f32).collect();
         for mut chunk in weights.chunks_mut(&hoods) {
             chunk.set(v, &by_entry);
         }
@@ -428,9 +438,36 @@ mod tests {
         weights.get_f32_into(&hoods, v, &mut as_f32);
         for (i, (unit, j)) in hoods.entries(v).enumerate() {
             assert_eq!(j, list[i]);
-            assert_eq!(stored[unit], by_entry[i]);
+            assert_eq!(stored[unit], f16::from_f32(by_entry[i]));
             assert_eq!(as_f32[unit], i as f32);
         }
         assert!(weights.get(&hoods, v + 1).iter().all(|w| *w == f16::ZERO));
+    }
+
+    #[test]
+    fn weights_follow_entries_stored_with_an_escape() {
+        let m = grid(265);
+        let t = Topology::build(&m);
+        let n = t.num_vertices() as u32;
+        assert!(n > 66_000);
+        // Vertex v lists v + 1 and v + 66000: a gap past one unit.
+        let hoods = Neighbourhoods::build(&t, |v, _, out| {
+            out.extend([(v as u32 + 66_000) % n, (v as u32 + 1) % n]);
+        });
+        let v = 5;
+        let mut list = Vec::new();
+        hoods.get_into(v, &mut list);
+        assert_eq!(list, [6, 66_005]);
+        let mut weights = hoods.zero_weights();
+        for mut chunk in weights.chunks_mut(&hoods).take(1) {
+            chunk.set(v, &[0.25, -0.5]);
+        }
+        let stored = weights.get(&hoods, v);
+        let by_unit: Vec<(usize, f32)> = hoods
+            .entries(v)
+            .map(|(unit, _)| (unit, stored[unit].to_f32()))
+            .collect();
+        assert_eq!(by_unit, [(0, 0.25), (2, -0.5)]);
+        assert_eq!(stored.len(), 5, "2 units, the escape and 2 more");
     }
 }

@@ -11,7 +11,6 @@ use super::normals::{vertex_normal, vertex_normals_f32};
 use super::quadric_fit::{Facing, FitKind, FitModel, fit_neighbours, fit_neighbours_weighted};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::DVec3;
-use half::f16;
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -111,7 +110,7 @@ pub fn fit_pass(
                 hoods.get_into(v, &mut list);
                 let fit = match weights.as_mut() {
                     Some(w) => {
-                        slot_weights.resize(list.len(), f16::ZERO);
+                        slot_weights.resize(list.len(), 0.0);
                         let fit = fit_neighbours_weighted(
                             &frame,
                             positions,
@@ -234,7 +233,7 @@ mod tests {
         let target = list[0] as usize;
         let mut weights = hoods.zero_weights();
         for mut chunk in weights.chunks_mut(&hoods) {
-            chunk.set(centre, &[f16::ONE]);
+            chunk.set(centre, &[1.0]);
         }
         let movable = vec![true; mesh.num_vertices()];
         let mut out = vec![DVec3::ZERO; mesh.num_vertices()];

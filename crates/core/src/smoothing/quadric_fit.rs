@@ -31,7 +31,6 @@
 
 use super::frame::Frame;
 use glam::{DVec3, Vec3};
-use half::f16;
 
 /// Relative pivot below which a normal-equation system counts as singular.
 pub const MIN_RELATIVE_PIVOT: f64 = 1e-7;
@@ -180,9 +179,9 @@ pub fn fit_neighbours_weighted(
     neighbours: &[u32],
     model: FitModel,
     facing: Option<Facing>,
-    weights: &mut [f16],
+    weights: &mut [f32],
 ) -> QuadricFit {
-    weights.fill(f16::ZERO);
+    weights.fill(0.0);
     gather_and_fit(frame, positions, neighbours, model, facing, Some(weights))
 }
 
@@ -192,7 +191,7 @@ fn gather_and_fit(
     neighbours: &[u32],
     model: FitModel,
     facing: Option<Facing>,
-    weights: Option<&mut [f16]>,
+    weights: Option<&mut [f32]>,
 ) -> QuadricFit {
     let neighbours = &neighbours[..neighbours.len().min(MAX_FIT_POINTS)];
     if neighbours.len() < 3 {
@@ -248,7 +247,7 @@ fn gather_and_fit(
     };
     let fit = fit_points(&local[..kept], s, model, Some(a));
     for (&slot, &ak) in source[..kept].iter().zip(a.iter()) {
-        weights[slot as usize] = f16::from_f32(ak as f32);
+        weights[slot as usize] = ak as f32;
     }
     fit
 }
@@ -911,7 +910,7 @@ mod tests {
         };
         let frame = Frame::new(DVec3::ZERO, DVec3::Z);
         let ids: Vec<u32> = (0..pts.len() as u32).collect();
-        let mut w = vec![f16::ONE; pts.len()];
+        let mut w = vec![1.0f32; pts.len()];
         for (model, kind) in [
             (FitModel::Cubic, FitKind::Cubic),
             (FitModel::Quadric, FitKind::Quadric),
@@ -920,12 +919,12 @@ mod tests {
             let fit = fit_neighbours_weighted(&frame, &pts, &ids, model, Some(facing), &mut w);
             assert_eq!(fit, fit_neighbours(&frame, &pts, &ids, model, Some(facing)));
             assert_eq!(fit.kind, kind);
-            let a: Vec<f64> = w.iter().map(|x| f64::from(x.to_f32())).collect();
+            let a: Vec<f64> = w.iter().map(|&x| f64::from(x)).collect();
             assert_eq!((a[40], a[41]), (0.0, 0.0), "{kind:?}: left-out points");
             let height: f64 = a.iter().zip(&pts).map(|(a, p)| a * p.z).sum();
-            // Half-precision weights: about 1e-3 of the heights' size.
+            // Single-precision weights.
             assert!(
-                (height - fit.height()).abs() < 2e-3,
+                (height - fit.height()).abs() < 1e-5,
                 "{kind:?}: {height} vs {}",
                 fit.height()
             );
@@ -934,14 +933,14 @@ mod tests {
                 a.iter().zip(&pts).map(|(a, p)| a * p.x).sum(),
                 a.iter().zip(&pts).map(|(a, p)| a * p.y).sum(),
             );
-            assert!((sum - 1.0).abs() < 2e-3, "{kind:?}: weights sum to {sum}");
-            assert!(mx.abs() < 5e-3 && my.abs() < 5e-3, "{kind:?}: {mx} {my}");
+            assert!((sum - 1.0).abs() < 1e-5, "{kind:?}: weights sum to {sum}");
+            assert!(mx.abs() < 1e-5 && my.abs() < 1e-5, "{kind:?}: {mx} {my}");
         }
         // No usable fit: every weight 0.
         let fit =
             fit_neighbours_weighted(&frame, &pts, &ids[..2], FitModel::Cubic, None, &mut w[..2]);
         assert_eq!(fit.kind, FitKind::Fixed);
-        assert!(w[..2].iter().all(|x| *x == f16::ZERO));
+        assert!(w[..2].iter().all(|&x| x == 0.0));
     }
 
     #[test]
