@@ -38,7 +38,7 @@ pub enum Stage {
     Label,
     /// Adaptive smoothing (grown neighbourhoods).
     Adaptive,
-    /// Quality fixes (twisted quads, short edges, sharp angles).
+    /// Quality fixes (twisted quads, short edges, sharp angles, folds).
     Quality,
     /// Measures of the output for the report.
     Report,
@@ -230,7 +230,6 @@ pub fn wang_yu(
         min_cos,
     );
 
-    eprintln!("TT curvature map {:.1}", ms(t));
     let l = mean_edge_length(mesh, &positions);
     let labels: Vec<Label> = hk
         .iter()
@@ -261,7 +260,6 @@ pub fn wang_yu(
         &facing_normals,
         rule,
     );
-    eprintln!("TT growth done {:.1}", ms(t));
     // Free what growth needed before the passes allocate theirs.
     drop((h_scaled, facing_normals, agreement));
     timings_ms.push((Stage::Label, ms(t)));

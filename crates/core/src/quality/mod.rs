@@ -1,5 +1,6 @@
-//! Mesh-quality fixes of section 2.4 (algorithm notes section 8), one file
-//! per fix, and the measures of the quality report (section 9).
+//! Mesh-quality fixes of section 2.4 (algorithm notes section 8) and one of
+//! our own for folds (inverted faces), one file per fix, and the measures
+//! of the quality report (section 9).
 //!
 //! The fixes only move vertices (connectivity never changes), move only
 //! interior vertices, and keep a move only when it makes nothing worse: no
@@ -9,17 +10,20 @@
 //! split-triangle angle of the affected faces does not shrink (a move that
 //! removes a twisted quad or an inverted face may shrink it: defects
 //! outrank angles). [`improve`] runs them in the order twisted quads, short
-//! edges, sharp angles. All three are deterministic and independent of the
+//! edges, sharp angles, inverted faces (then sharp angles once more when
+//! that moved anything). All are deterministic and independent of the
 //! number of threads.
 
 #[cfg(test)]
 mod fixtures;
+pub mod inverted;
 mod local;
 pub mod measures;
 pub mod sharp_angle;
 pub mod short_edge;
 pub mod twisted;
 
+pub use inverted::{InvertedStats, fix_inverted_faces};
 pub use measures::{measure_stage, mesh_statistics};
 pub use sharp_angle::{SharpAngleStats, fix_sharp_angles};
 pub use short_edge::{ShortEdgeStats, fix_short_edges};
@@ -30,22 +34,26 @@ use crate::params::QualityParams;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
-/// What the three fixes did.
+/// What the fixes did.
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
 pub struct QualityFixStats {
     /// Twisted-quad fix.
     pub twisted: TwistedStats,
+    /// Inverted-face fix (runs after the sharp-angle fix).
+    pub inverted: InvertedStats,
     /// Short-edge fix.
     pub short_edges: ShortEdgeStats,
     /// Sharp-angle fix.
     pub sharp_angles: SharpAngleStats,
 }
 
-/// Runs the three fixes on `positions` (one per vertex, moved in place)
-/// with `input` the input positions (one per vertex, the reference for
-/// inverted faces): twisted quads, then short edges, then sharp angles,
-/// each at most `params.max_sweeps` sweeps. Surface fits leave out
+/// Runs the fixes on `positions` (one per vertex, moved in place) with
+/// `input` the input positions (one per vertex, the reference for inverted
+/// faces): twisted quads, then short edges, then sharp angles, then the
+/// folds the sharp-angle fix's single-vertex moves could not open (and, if
+/// that moved a vertex, sharp angles again, its counts added to the
+/// first run's), each at most `params.max_sweeps` sweeps. Surface fits leave out
 /// neighbours facing away by a cosine below `min_normal_cos`
 /// ([`crate::Params::min_normal_cos`]). Does nothing when `params.enabled`
 /// is false.
@@ -71,17 +79,30 @@ pub fn improve(
         sweeps,
         min_normal_cos,
     );
-    let sharp_angles = fix_sharp_angles(
-        mesh,
-        topo,
-        positions,
-        input,
-        params.sharp_angle_deg,
-        sweeps,
-        min_normal_cos,
-    );
+    let sharp = |positions: &mut [DVec3]| {
+        fix_sharp_angles(
+            mesh,
+            topo,
+            positions,
+            input,
+            params.sharp_angle_deg,
+            sweeps,
+            min_normal_cos,
+        )
+    };
+    let mut sharp_angles = sharp(positions);
+    let inverted = fix_inverted_faces(mesh, topo, positions, input, sweeps);
+    if inverted.vertices_moved > 0 {
+        // The folds moved back towards the input: clean up their angles.
+        let again = sharp(positions);
+        sharp_angles.moves += again.moves;
+        sharp_angles.rejected += again.rejected;
+        sharp_angles.sweeps += again.sweeps;
+        sharp_angles.faces_remaining = again.faces_remaining;
+    }
     QualityFixStats {
         twisted,
+        inverted,
         short_edges,
         sharp_angles,
     }

@@ -42,7 +42,6 @@ pub fn smooth_passes(
     let mut stats = FitStats::default();
     for pass in 0..passes {
         check(cancel)?;
-        let tt = std::time::Instant::now();
         let s = match &weights {
             Some(w) if !refits(pass) => {
                 weighted_pass(mesh, topo, positions, hoods, w, movable, &mut next)
@@ -62,7 +61,6 @@ pub fn smooth_passes(
                 )
             }
         };
-        eprintln!("TT pass {pass} {:.1}", tt.elapsed().as_secs_f64() * 1e3);
         stats.accumulate(s);
         std::mem::swap(positions, &mut next);
         on_pass(pass + 1);

@@ -1,0 +1,306 @@
+//! Inverted-face fix (an addition to the paper's section 2.4): a fold the
+//! smoothing left, where a face points against its input orientation.
+//!
+//! A fold usually spans several vertices (a thin ridge of a voxel mask
+//! pinched by the fits from both sides), so no single-vertex move within
+//! its star can open it, and the sharp-angle fix's relocations leave it.
+//! This fix moves a whole fold back towards the input, where no face is
+//! inverted by definition: the vertices of a cluster of inverted faces
+//! (faces sharing a vertex) that can move (interior, away from their input
+//! position) are moved together by the fraction `t` of the way to their
+//! input positions, trying the [`RETREATS`] from the smallest, and the
+//! first move that leaves fewer inverted faces and makes nothing worse is
+//! kept (see `MoveTester`). When none is, the cluster takes in such
+//! vertices one ring further out and tries again, at most [`MAX_WIDENINGS`]
+//! times. The result gives up a little smoothing where the fold was, and
+//! only there. It runs after the sharp-angle fix, which opens most folds by
+//! single-vertex moves that keep the smoothing; on the synthetic shapes it
+//! leaves none, so this fix moves nothing there.
+//!
+//! Order: sequential, clusters in ascending order of their smallest face
+//! (deterministic); a sweep rescans the faces still inverted; the fix
+//! stops after a sweep that changes nothing, when none is left, or after
+//! `max_sweeps`. Only interior vertices move.
+
+use super::local::{MoveTester, is_inverted};
+use crate::mesh::{Mesh, Topology, VertexKind};
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Fractions of the way back to the input tried for a cluster, smallest
+/// first: the least smoothing given up that opens the fold.
+pub const RETREATS: [f64; 5] = [0.125, 0.25, 0.5, 0.75, 1.0];
+
+/// How many times a cluster may take in one more ring of vertices.
+pub const MAX_WIDENINGS: usize = 2;
+
+/// Largest cluster of inverted faces moved as one; a larger one (a mesh
+/// turned inside out over a whole region) is left as it is.
+pub const MAX_CLUSTER_FACES: usize = 64;
+
+/// What the inverted-face fix did.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct InvertedStats {
+    /// Faces inverted relative to the input before the fix.
+    pub found: u64,
+    /// Accepted cluster moves towards the input.
+    pub retreats: u64,
+    /// Vertices those moves moved (a vertex moved twice counts twice).
+    pub vertices_moved: u64,
+    /// Clusters no tried move could open.
+    pub rejected: u64,
+    /// Sweeps run.
+    pub sweeps: u64,
+    /// Inverted faces after the fix.
+    pub remaining: u64,
+}
+
+fn inverted_faces(mesh: &Mesh, positions: &[DVec3], input: &[DVec3]) -> Vec<u32> {
+    (0..mesh.num_faces() as u32)
+        .into_par_iter()
+        .with_min_len(4096)
+        .filter(|&f| is_inverted(mesh.face(f as usize), positions, input))
+        .collect()
+}
+
+/// Moves folds back towards `input` (one position per vertex, like
+/// `positions`, which are moved in place); at most `max_sweeps` sweeps.
+pub fn fix_inverted_faces(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &mut [DVec3],
+    input: &[DVec3],
+    max_sweeps: u32,
+) -> InvertedStats {
+    let mut inverted = inverted_faces(mesh, positions, input);
+    let mut stats = InvertedStats {
+        found: inverted.len() as u64,
+        ..InvertedStats::default()
+    };
+    let mut tester = MoveTester::default();
+    let mut cluster = Cluster::default();
+    while !inverted.is_empty() && stats.sweeps < max_sweeps as u64 {
+        stats.sweeps += 1;
+        let mut changed = false;
+        for &f in &inverted {
+            if !is_inverted(mesh.face(f as usize), positions, input) {
+                continue; // opened by an earlier move of this sweep
+            }
+            cluster.gather(mesh, topo, f, positions, input);
+            if cluster.vertices.is_empty() || cluster.faces.len() > MAX_CLUSTER_FACES {
+                stats.rejected += 1;
+                continue;
+            }
+            let mut opened = false;
+            for widening in 0..=MAX_WIDENINGS {
+                if widening > 0 && !cluster.widen(topo, positions, input) {
+                    break;
+                }
+                if let Some(moved) = cluster.retreat(mesh, topo, positions, input, &mut tester) {
+                    stats.retreats += 1;
+                    stats.vertices_moved += moved as u64;
+                    opened = true;
+                    break;
+                }
+            }
+            if opened {
+                changed = true;
+            } else {
+                stats.rejected += 1;
+            }
+        }
+        let p: &[DVec3] = positions;
+        inverted.retain(|&f| is_inverted(mesh.face(f as usize), p, input));
+        if !changed {
+            break;
+        }
+    }
+    stats.remaining = inverted_faces(mesh, positions, input).len() as u64;
+    stats
+}
+
+/// True when vertex `v` is interior and away from its input position.
+fn movable(topo: &Topology, v: usize, positions: &[DVec3], input: &[DVec3]) -> bool {
+    topo.kind(v) == VertexKind::Interior && positions[v] != input[v]
+}
+
+/// The vertices of a cluster of inverted faces that can move back (interior,
+/// away from the input), with scratch.
+#[derive(Debug, Default)]
+struct Cluster {
+    vertices: Vec<usize>,
+    faces: Vec<u32>,
+    moves: Vec<(usize, DVec3)>,
+}
+
+impl Cluster {
+    /// The inverted faces reachable from face `f` through shared vertices,
+    /// and their interior vertices.
+    fn gather(
+        &mut self,
+        mesh: &Mesh,
+        topo: &Topology,
+        f: u32,
+        positions: &[DVec3],
+        input: &[DVec3],
+    ) {
+        self.faces.clear();
+        self.vertices.clear();
+        self.faces.push(f);
+        let mut next = 0;
+        while next < self.faces.len() {
+            let face = mesh.face(self.faces[next] as usize);
+            next += 1;
+            for &v in face {
+                let v = v as usize;
+                if self.vertices.contains(&v) {
+                    continue;
+                }
+                if movable(topo, v, positions, input) {
+                    self.vertices.push(v);
+                }
+                for &g in topo.vertex_faces(v) {
+                    if self.faces.len() <= MAX_CLUSTER_FACES
+                        && !self.faces.contains(&g)
+                        && is_inverted(mesh.face(g as usize), positions, input)
+                    {
+                        self.faces.push(g);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Adds the neighbours of the cluster's vertices that can move back;
+    /// false when there is none to add.
+    fn widen(&mut self, topo: &Topology, positions: &[DVec3], input: &[DVec3]) -> bool {
+        let before = self.vertices.len();
+        for i in 0..before {
+            for &w in topo.neighbors(self.vertices[i]) {
+                let w = w as usize;
+                if movable(topo, w, positions, input) && !self.vertices.contains(&w) {
+                    self.vertices.push(w);
+                }
+            }
+        }
+        self.vertices.len() > before
+    }
+
+    /// Tries the retreats of the cluster's vertices; applies the first
+    /// accepted one and returns how many vertices it moved.
+    fn retreat(
+        &mut self,
+        mesh: &Mesh,
+        topo: &Topology,
+        positions: &mut [DVec3],
+        input: &[DVec3],
+        tester: &mut MoveTester,
+    ) -> Option<usize> {
+        tester.begin(mesh, topo, &self.vertices, positions, input, 1.0);
+        for t in RETREATS {
+            self.moves.clear();
+            self.moves.extend(
+                self.vertices
+                    .iter()
+                    .map(|&v| (v, positions[v] + t * (input[v] - positions[v]))),
+            );
+            let v = tester.judge(mesh, &self.moves, positions);
+            if !v.new_defect && v.inverted.1 < v.inverted.0 && v.twisted.1 <= v.twisted.0 {
+                for &(w, p) in &self.moves {
+                    positions[w] = p;
+                }
+                return Some(self.moves.len());
+            }
+        }
+        None
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quality::fixtures::{at, grid};
+    use crate::quality::{defect_count, measure_stage};
+
+    #[test]
+    fn a_fold_of_two_vertices_goes_back_as_one() {
+        // Two neighbours of a flat grid pushed past each other: the faces
+        // around them fold, and both move back together.
+        let m = grid(6);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let (a, b) = (at(6, 2, 3), at(6, 3, 3));
+        let mut p = input.clone();
+        p[a] = DVec3::new(3.6, 3.0, 0.0);
+        p[b] = DVec3::new(2.4, 3.0, 0.0);
+        let before = measure_stage(&m, &t, &p, &input, None, 0.2);
+        assert!(before.inverted_faces >= 2, "the fixture folds");
+        let folded = p.clone();
+        let stats = fix_inverted_faces(&m, &t, &mut p, &input, 10);
+        assert_eq!(stats.found, before.inverted_faces);
+        assert_eq!((stats.retreats, stats.remaining), (1, 0), "{stats:?}");
+        assert_eq!(defect_count(&m, &p, &input), 0);
+        for v in 0..p.len() {
+            if v != a && v != b {
+                assert_eq!(p[v], folded[v], "vertex {v} is not in the fold");
+            }
+        }
+        // Half way back they still cross (2.8 > 2.7); three quarters of the
+        // way (2.4 < 2.85) they do not.
+        let blend = |v: usize| folded[v] + 0.75 * (input[v] - folded[v]);
+        assert_eq!((p[a], p[b]), (blend(a), blend(b)));
+    }
+
+    #[test]
+    fn a_fold_goes_back_by_the_smallest_fraction_that_opens_it() {
+        let m = grid(6);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let a = at(6, 2, 3);
+        let mut p = input.clone();
+        // Past its neighbour (3, 3): a quarter of the way back (x = 3.05)
+        // is still past it, half of the way (x = 2.7) is not.
+        p[a] = DVec3::new(3.4, 3.0, 0.0);
+        let stats = fix_inverted_faces(&m, &t, &mut p, &input, 10);
+        assert_eq!((stats.retreats, stats.remaining), (1, 0), "{stats:?}");
+        assert!(
+            (p[a] - DVec3::new(2.7, 3.0, 0.0)).length() < 1e-12,
+            "{}",
+            p[a]
+        );
+        assert_eq!(stats.vertices_moved, 1);
+    }
+
+    #[test]
+    fn boundary_vertices_never_move() {
+        let m = grid(2);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let mut p = input.clone();
+        // A boundary corner pushed across the grid: only the boundary vertex
+        // could open the fold.
+        let corner = at(2, 0, 0);
+        p[corner] = DVec3::new(1.5, 1.5, 0.0);
+        let moved = p.clone();
+        let stats = fix_inverted_faces(&m, &t, &mut p, &input, 10);
+        assert!(stats.found >= 1);
+        assert_eq!(stats.remaining, stats.found);
+        assert!(stats.rejected >= 1);
+        assert_eq!(p, moved);
+    }
+
+    #[test]
+    fn an_unfolded_mesh_is_left_alone() {
+        let m = grid(4);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let mut p = input.clone();
+        p[at(4, 2, 2)].z = 0.3;
+        let bumped = p.clone();
+        let stats = fix_inverted_faces(&m, &t, &mut p, &input, 10);
+        assert_eq!(stats, InvertedStats::default());
+        assert_eq!(p, bumped);
+    }
+}
