@@ -40,12 +40,12 @@ use serde::{Deserialize, Serialize};
 pub struct QualityFixStats {
     /// Twisted-quad fix.
     pub twisted: TwistedStats,
-    /// Inverted-face fix (runs after the sharp-angle fix).
-    pub inverted: InvertedStats,
     /// Short-edge fix.
     pub short_edges: ShortEdgeStats,
     /// Sharp-angle fix.
     pub sharp_angles: SharpAngleStats,
+    /// Inverted-face (fold) fix.
+    pub inverted: InvertedStats,
 }
 
 /// Runs the fixes on `positions` (one per vertex, moved in place) with
@@ -102,9 +102,9 @@ pub fn improve(
     }
     QualityFixStats {
         twisted,
-        inverted,
         short_edges,
         sharp_angles,
+        inverted,
     }
 }
 
