@@ -6,7 +6,8 @@ use super::project::{FitStats, fit_pass, weighted_pass};
 use super::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
 use crate::pipeline::{Cancelled, check};
-use glam::DVec3;
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
 use std::sync::atomic::AtomicBool;
 
 /// Runs `passes` passes over `hoods` starting from `positions` (updated in
@@ -22,7 +23,7 @@ use std::sync::atomic::AtomicBool;
 pub fn smooth_passes(
     mesh: &Mesh,
     topo: &Topology,
-    positions: &mut Vec<DVec3>,
+    positions: &mut [DVec3],
     hoods: &Neighbourhoods,
     movable: &[bool],
     model: FitModel,
@@ -32,7 +33,7 @@ pub fn smooth_passes(
     cancel: &AtomicBool,
     mut on_pass: impl FnMut(u32),
 ) -> Result<FitStats, Cancelled> {
-    let mut next = vec![DVec3::ZERO; positions.len()];
+    let mut moves = vec![Vec3::ZERO; positions.len()];
     let last = passes.saturating_sub(1);
     let refits = |p: u32| p == 0 || p == last || refit(p);
     // Weights are kept only when some pass reuses them.
@@ -44,7 +45,7 @@ pub fn smooth_passes(
         check(cancel)?;
         let s = match &weights {
             Some(w) if !refits(pass) => {
-                weighted_pass(mesh, topo, positions, hoods, w, movable, &mut next)
+                weighted_pass(mesh, topo, positions, hoods, w, movable, &mut moves)
             }
             _ => {
                 let reused = pass + 1 < passes && !refits(pass + 1);
@@ -56,13 +57,17 @@ pub fn smooth_passes(
                     movable,
                     model,
                     min_cos,
-                    &mut next,
+                    &mut moves,
                     weights.as_mut().filter(|_| reused),
                 )
             }
         };
         stats.accumulate(s);
-        std::mem::swap(positions, &mut next);
+        positions
+            .par_iter_mut()
+            .zip(&moves)
+            .with_min_len(4096)
+            .for_each(|(p, m)| *p += m.as_dvec3());
         on_pass(pass + 1);
     }
     Ok(stats)

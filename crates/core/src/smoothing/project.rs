@@ -1,16 +1,18 @@
 //! Step 4: projection, the smoothing step (algorithm notes section 4).
 //!
 //! Each vertex moves along its normal onto its fitted quadric, `p_i' = p_i +
-//! g n_i`. Updates are Jacobi style: all new positions are computed from the
-//! old ones and written to a second buffer, so the result is deterministic
-//! and independent of the thread count.
+//! g n_i`. Updates are Jacobi style: all moves are computed from the old
+//! positions and written to a second buffer (single precision: a move is at
+//! most an edge long, so its rounding is a ten-millionth of an edge), then
+//! applied, so the result is deterministic and independent of the thread
+//! count.
 
 use super::frame::Frame;
 use super::neighbourhood::{CHUNK, ChunkWeights, NeighbourWeights, Neighbourhoods};
 use super::normals::{vertex_normal, vertex_normals_f32};
 use super::quadric_fit::{Facing, FitKind, FitModel, fit_neighbours, fit_neighbours_weighted};
 use crate::mesh::{Mesh, Topology, VertexKind};
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -53,8 +55,8 @@ impl FitStats {
 }
 
 /// One Jacobi pass: fits `model` to every movable vertex's neighbourhood in
-/// `positions` and writes the projected positions to `out` (immovable
-/// vertices are copied; movable boundary vertices fit a plane). Neighbours
+/// `positions` and writes each vertex's move to `out` (zero for immovable
+/// vertices; movable boundary vertices fit a plane). Neighbours
 /// whose normal makes a cosine below `min_cos` with the vertex's are left
 /// out of its fit ([`Facing`]).
 /// With `weights` (made by `hoods`), writes each fit's linear weights
@@ -69,7 +71,7 @@ pub fn fit_pass(
     movable: &[bool],
     model: FitModel,
     min_cos: f64,
-    out: &mut [DVec3],
+    out: &mut [Vec3],
     weights: Option<&mut NeighbourWeights>,
 ) -> FitStats {
     let normals = vertex_normals_f32(mesh, topo, positions);
@@ -88,7 +90,7 @@ pub fn fit_pass(
             for (i, o) in out.iter_mut().enumerate() {
                 let v = c * CHUNK + i;
                 let p = positions[v];
-                *o = p;
+                *o = Vec3::ZERO;
                 let n = normals[v].as_dvec3().normalize_or_zero();
                 if !movable[v] || n == DVec3::ZERO {
                     if let Some(w) = weights.as_mut() {
@@ -130,7 +132,7 @@ pub fn fit_pass(
                     FitKind::Plane => stats.plane_fallback += 1,
                     FitKind::Fixed => stats.fixed_fallback += 1,
                 }
-                *o = p + step(topo, positions, v, fit.height(), &mut stats) * n;
+                *o = (step(topo, positions, v, fit.height(), &mut stats) * n).as_vec3();
             }
             stats
         })
@@ -141,7 +143,8 @@ pub fn fit_pass(
 /// height its last fit's linear `weights` give for the current heights of
 /// its neighbours ([`fit_neighbours_weighted`]): the fit repeated with its
 /// frame coordinates and point weights kept, at the cost of one weighted
-/// sum. Vertices whose weights are all zero (fixed, immovable) stay; so
+/// sum, written as each vertex's move to `out`. Vertices whose weights are
+/// all zero (fixed, immovable) stay; so
 /// does a vertex whose move would exceed [`MAX_STEP`] times its mean edge
 /// length in the input mesh (counted as clamped): reused weights no longer
 /// describe a surface that has moved that far, and a bound taken from the
@@ -154,7 +157,7 @@ pub fn weighted_pass(
     hoods: &Neighbourhoods,
     weights: &NeighbourWeights,
     movable: &[bool],
-    out: &mut [DVec3],
+    out: &mut [Vec3],
 ) -> FitStats {
     out.par_chunks_mut(CHUNK)
         .enumerate()
@@ -164,7 +167,7 @@ pub fn weighted_pass(
             for (i, o) in out.iter_mut().enumerate() {
                 let v = c * CHUNK + i;
                 let p = positions[v];
-                *o = p;
+                *o = Vec3::ZERO;
                 if !movable[v] {
                     continue;
                 }
@@ -180,7 +183,7 @@ pub fn weighted_pass(
                     stats.clamped += 1;
                     continue;
                 }
-                *o = p + g * n;
+                *o = (g * n).as_vec3();
                 stats.max_displacement = stats.max_displacement.max(g.abs());
             }
             stats
@@ -236,14 +239,14 @@ mod tests {
             chunk.set(centre, &[1.0]);
         }
         let movable = vec![true; mesh.num_vertices()];
-        let mut out = vec![DVec3::ZERO; mesh.num_vertices()];
+        let mut out = vec![Vec3::ZERO; mesh.num_vertices()];
         let edge = mean_edge_at(&topo, mesh.positions(), centre);
         let normal = vertex_normal(&mesh, &topo, mesh.positions(), centre);
         for (lift, moves) in [(0.5, true), (3.0, false)] {
             let mut p = mesh.positions().to_vec();
             p[target] += lift * edge * normal;
             let stats = weighted_pass(&mesh, &topo, &p, &hoods, &weights, &movable, &mut out);
-            let moved = out[centre].distance(p[centre]);
+            let moved = f64::from(out[centre].length());
             if moves {
                 assert!(moved > 0.3 * edge, "followed by {moved}");
                 assert_eq!(stats.clamped, 0);
