@@ -322,7 +322,7 @@ pub fn wang_yu(
     })
 }
 
-/// The curvature a stage reports (and the runs' per-vertex result): from
+/// The curvature a stage reports (and the run's per-vertex result): from
 /// quadric fits to every vertex's 2-ring, the same estimator for the input
 /// and the output, so their curvature variations compare.
 fn stage_curvature(
