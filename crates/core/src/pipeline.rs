@@ -388,7 +388,7 @@ pub fn run(
 
     // Set when the adaptive stage already reported an unrestored volume.
     let mut volume_warned = false;
-    let (mut positions, labels) = match params.method {
+    let (mut positions, labels, adaptive_curvature) = match params.method {
         Method::WangYu => {
             let r = {
                 let _s = tracing::info_span!("wang_yu").entered();
@@ -424,7 +424,7 @@ pub fn run(
             timings.extend(r.timings_ms.iter().copied());
             timings.push((Stage::Report, ms(t)));
             let labels = r.labels.iter().map(|&l| l as u8).collect();
-            (r.adaptive, labels)
+            (r.adaptive, labels, Some(r.curvature))
         }
         Method::Laplacian | Method::Taubin => {
             let t = Instant::now();
@@ -436,9 +436,12 @@ pub fn run(
             report.stages.initial = Some(measure_stage(
                 mesh, &topo, &positions, input, None, fraction,
             ));
-            (positions, Vec::new())
+            (positions, Vec::new(), None)
         }
     };
+    // The adaptive stage's curvature is the final stage's when no quality
+    // fix moves a vertex in between.
+    let unmoved_curvature = adaptive_curvature.filter(|_| !params.quality.enabled);
     check(cancel)?;
 
     if params.quality.enabled {
@@ -480,7 +483,8 @@ pub fn run(
     check(cancel)?;
 
     let t = Instant::now();
-    let curvature = stage_curvature(mesh, &topo, &positions, params);
+    let curvature =
+        unmoved_curvature.unwrap_or_else(|| stage_curvature(mesh, &topo, &positions, params));
     report.stages.final_stage = Some(measure_stage(
         mesh,
         &topo,

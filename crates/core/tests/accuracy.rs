@@ -135,6 +135,21 @@ fn reported_curvature_is_the_spheres_and_its_variation_drops() {
 }
 
 #[test]
+fn without_quality_fixes_the_final_curvature_is_the_adaptive_stages() {
+    let (_, m) = shapes::voxel_sphere(6.0);
+    let mut params = Params::default();
+    params.quality.enabled = false;
+    let out = run(&m, &params, &NoProgress, &AtomicBool::new(false)).expect("runs");
+    let s = &out.report.stages;
+    let (adaptive, last) = (
+        s.adaptive.as_ref().unwrap(),
+        s.final_stage.as_ref().unwrap(),
+    );
+    assert!(adaptive.curvature_variation.is_some());
+    assert_eq!(adaptive.curvature_variation, last.curvature_variation);
+}
+
+#[test]
 fn output_is_identical_with_one_and_two_threads() {
     let (_, m) = shapes::voxel_torus(10.0, 4.0);
     let run_with = |threads| {

@@ -10,6 +10,7 @@
 
 use crate::mesh::{Mesh, Topology, vector_area};
 use crate::smoothing::frame::Frame;
+use crate::smoothing::normals::vertex_normal;
 use crate::smoothing::quadric_fit::{FitKind, QuadricFit, fit_quadric};
 use glam::DVec3;
 
@@ -436,16 +437,6 @@ impl MoveTester {
     }
 }
 
-/// Unit normal at `v` from the vector areas of its faces (zero when they
-/// cancel).
-pub(crate) fn vertex_normal(mesh: &Mesh, topo: &Topology, v: usize, positions: &[DVec3]) -> DVec3 {
-    topo.vertex_faces(v)
-        .iter()
-        .map(|&f| vector_area(mesh.face(f as usize), positions))
-        .sum::<DVec3>()
-        .normalize_or_zero()
-}
-
 /// Appends the 2-ring of `v` (every vertex within two edges, not `v`) to
 /// `out`, sorted and without duplicates.
 pub(crate) fn two_ring(topo: &Topology, v: usize, out: &mut Vec<u32>) {
@@ -546,7 +537,7 @@ impl LocalSurface {
         ring: &mut Vec<u32>,
         min_normal_cos: f64,
     ) -> Option<LocalSurface> {
-        let n = vertex_normal(mesh, topo, v, positions);
+        let n = vertex_normal(mesh, topo, positions, v);
         if n == DVec3::ZERO {
             return None;
         }
@@ -554,7 +545,7 @@ impl LocalSurface {
         two_ring(topo, v, ring);
         if min_normal_cos > -1.0 {
             ring.retain(|&w| {
-                vertex_normal(mesh, topo, w as usize, positions).dot(n) >= min_normal_cos
+                vertex_normal(mesh, topo, positions, w as usize).dot(n) >= min_normal_cos
             });
         }
         let fit = fit_quadric(&frame, positions, ring);
