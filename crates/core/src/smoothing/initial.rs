@@ -2,7 +2,7 @@
 //! fits over the fixed 2-ring of every vertex.
 
 use super::neighbourhood::Neighbourhoods;
-use super::project::{FitStats, fit_pass, weighted_pass};
+use super::project::{FitStats, fit_pass, step_limits, weighted_pass};
 use super::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
 use crate::pipeline::{Cancelled, check};
@@ -41,12 +41,16 @@ pub fn smooth_passes(
         .any(|p| !refits(p))
         .then(|| hoods.zero_weights());
     let mut stats = FitStats::default();
+    let limits = match &weights {
+        Some(_) => step_limits(mesh, topo),
+        None => Vec::new(),
+    };
     for pass in 0..passes {
         check(cancel)?;
         let s = match &weights {
-            Some(w) if !refits(pass) => {
-                weighted_pass(mesh, topo, positions, hoods, w, movable, &mut moves)
-            }
+            Some(w) if !refits(pass) => weighted_pass(
+                mesh, topo, positions, hoods, w, &limits, movable, &mut moves,
+            ),
             _ => {
                 let reused = pass + 1 < passes && !refits(pass + 1);
                 fit_pass(

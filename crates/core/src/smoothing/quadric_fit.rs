@@ -544,6 +544,10 @@ fn cubic_moments_lanes(
 ) -> ([f64; 28], [f64; 10]) {
     let mut acc = [[0.0f64; LANES]; 28];
     let mut acc_z = [[0.0f64; LANES]; 10];
+    // Three sweeps over the (small, cached) points, each with few enough
+    // sums to stay in vector registers: the kernel weights and the moments
+    // of degree up to 3, then degrees 4 and 5, then degree 6 and the
+    // right-hand side. Each sum still adds its points in order.
     for (((x, y), z), ws) in xs
         .chunks_exact(LANES)
         .zip(ys.chunks_exact(LANES))
@@ -557,25 +561,35 @@ fn cubic_moments_lanes(
             w[i] = p[i] * weight(t);
         }
         ws.copy_from_slice(&w);
-        // `wx[a] = w x^a`, `yp[b] = y^b`; moment (a, b) is their product.
-        let mut wx = [[0.0; LANES]; 7];
-        let mut yp = [[0.0; LANES]; 7];
+        let (wx1, y1) = (mul(w, x), y);
+        let (wx2, y2) = (mul(wx1, x), mul(y1, y));
+        let (wx3, y3) = (mul(wx2, x), mul(y2, y));
+        let one = [1.0; LANES];
+        add(&mut acc[0], mul(w, one));
+        add(&mut acc[1], mul(wx1, one));
+        add(&mut acc[2], mul(w, y1));
+        add(&mut acc[3], mul(wx2, one));
+        add(&mut acc[4], mul(wx1, y1));
+        add(&mut acc[5], mul(w, y2));
+        add(&mut acc[6], mul(wx3, one));
+        add(&mut acc[7], mul(wx2, y1));
+        add(&mut acc[8], mul(wx1, y2));
+        add(&mut acc[9], mul(w, y3));
+    }
+    for ((x, y), ws) in xs
+        .chunks_exact(LANES)
+        .zip(ys.chunks_exact(LANES))
+        .zip(ws.chunks_exact(LANES))
+    {
+        let (x, y, w) = (lanes(x), lanes(y), lanes(ws));
+        let mut wx = [[0.0; LANES]; 6];
+        let mut yp = [[0.0; LANES]; 6];
         wx[0] = w;
         yp[0] = [1.0; LANES];
-        for q in 1..7 {
+        for q in 1..6 {
             wx[q] = mul(wx[q - 1], x);
             yp[q] = mul(yp[q - 1], y);
         }
-        add(&mut acc[0], mul(wx[0], yp[0]));
-        add(&mut acc[1], mul(wx[1], yp[0]));
-        add(&mut acc[2], mul(wx[0], yp[1]));
-        add(&mut acc[3], mul(wx[2], yp[0]));
-        add(&mut acc[4], mul(wx[1], yp[1]));
-        add(&mut acc[5], mul(wx[0], yp[2]));
-        add(&mut acc[6], mul(wx[3], yp[0]));
-        add(&mut acc[7], mul(wx[2], yp[1]));
-        add(&mut acc[8], mul(wx[1], yp[2]));
-        add(&mut acc[9], mul(wx[0], yp[3]));
         add(&mut acc[10], mul(wx[4], yp[0]));
         add(&mut acc[11], mul(wx[3], yp[1]));
         add(&mut acc[12], mul(wx[2], yp[2]));
@@ -587,6 +601,22 @@ fn cubic_moments_lanes(
         add(&mut acc[18], mul(wx[2], yp[3]));
         add(&mut acc[19], mul(wx[1], yp[4]));
         add(&mut acc[20], mul(wx[0], yp[5]));
+    }
+    for (((x, y), z), ws) in xs
+        .chunks_exact(LANES)
+        .zip(ys.chunks_exact(LANES))
+        .zip(zs.chunks_exact(LANES))
+        .zip(ws.chunks_exact(LANES))
+    {
+        let (x, y, z, w) = (lanes(x), lanes(y), lanes(z), lanes(ws));
+        let mut wx = [[0.0; LANES]; 7];
+        let mut yp = [[0.0; LANES]; 7];
+        wx[0] = w;
+        yp[0] = [1.0; LANES];
+        for q in 1..7 {
+            wx[q] = mul(wx[q - 1], x);
+            yp[q] = mul(yp[q - 1], y);
+        }
         add(&mut acc[21], mul(wx[6], yp[0]));
         add(&mut acc[22], mul(wx[5], yp[1]));
         add(&mut acc[23], mul(wx[4], yp[2]));
