@@ -48,6 +48,13 @@ fn one(radius: f64) {
         before as f64 / 1e6,
     );
     println!("        stages (ms): {}", stages.join(", "));
+    if let Some(w) = &out.report.wang_yu {
+        let f = &w.adaptive_fits;
+        println!(
+            "        adaptive fits per vertex: {:.2}",
+            (f.cubic + f.quadric + f.plane + f.fixed) as f64 / n as f64
+        );
+    }
 }
 
 fn main() {

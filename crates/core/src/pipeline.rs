@@ -9,7 +9,8 @@ use crate::report::{
 };
 use crate::report::{QualityReport, StageMeasures};
 use crate::smoothing::adaptive::{
-    AdaptiveNeighbourhoods, GrowthRule, adaptive_neighbourhoods, agreement_masks, is_refit_pass,
+    AdaptiveNeighbourhoods, GrowthRule, REFIT_TOLERANCE, adaptive_neighbourhoods, agreement_masks,
+    is_refit_pass,
 };
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
 use crate::smoothing::initial::smooth_passes;
@@ -200,6 +201,7 @@ pub fn wang_yu(
         min_cos,
         passes,
         |_| true,
+        None,
         cancel,
         |p| progress.update(Stage::Initial, p as f64 / passes.max(1) as f64),
     )?;
@@ -280,6 +282,7 @@ pub fn wang_yu(
         min_cos,
         passes,
         is_refit_pass,
+        Some(REFIT_TOLERANCE),
         cancel,
         |p| progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64),
     )?;

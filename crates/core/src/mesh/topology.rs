@@ -27,8 +27,9 @@ pub enum VertexKind {
 pub struct Topology {
     vv_offsets: Vec<u32>,
     vv: Vec<u32>,
-    /// Edge index of each `vv` entry (parallel to `vv`).
-    vv_edge: Vec<u32>,
+    /// `edges[edge_offsets[v]..edge_offsets[v + 1]]` are the edges whose
+    /// smaller end is `v` (sorted by the larger end).
+    edge_offsets: Vec<u32>,
     vf_offsets: Vec<u32>,
     vf: Vec<u32>,
     /// Unique undirected edges, `[lo, hi]` with `lo < hi`.
@@ -86,7 +87,9 @@ impl Topology {
         let mut ef_offsets = Vec::with_capacity(total / 2 + 2);
         let mut ef = Vec::with_capacity(total);
         ef_offsets.push(0u32);
+        let mut edge_offsets = Vec::with_capacity(n + 1);
         for lo in 0..n {
+            edge_offsets.push(edges.len() as u32);
             let bucket = &mut half[bucket_count[lo] as usize..bucket_count[lo + 1] as usize];
             bucket.sort_unstable();
             let mut i = 0;
@@ -104,6 +107,7 @@ impl Topology {
                 ef_offsets.push(ef.len() as u32);
             }
         }
+        edge_offsets.push(edges.len() as u32);
         drop(half);
         // Vertex -> vertex (with edge ids), sorted by neighbour within a vertex
         // because edges are produced in (lo, hi) order.
@@ -115,18 +119,15 @@ impl Topology {
         prefix_sum(&mut vv_offsets);
         let mut fill = vv_offsets.clone();
         let mut vv = vec![0u32; vv_offsets[n] as usize];
-        let mut vv_edge = vec![0u32; vv.len()];
         // Entries where the vertex is `hi` come first (their `lo` is smaller).
-        for (ei, e) in edges.iter().enumerate() {
+        for e in &edges {
             let s = &mut fill[e[1] as usize];
             vv[*s as usize] = e[0];
-            vv_edge[*s as usize] = ei as u32;
             *s += 1;
         }
-        for (ei, e) in edges.iter().enumerate() {
+        for e in &edges {
             let s = &mut fill[e[0] as usize];
             vv[*s as usize] = e[1];
-            vv_edge[*s as usize] = ei as u32;
             *s += 1;
         }
         // Vertex -> face, each face once per vertex, in face order.
@@ -153,7 +154,7 @@ impl Topology {
         let mut topo = Topology {
             vv_offsets,
             vv,
-            vv_edge,
+            edge_offsets,
             vf_offsets,
             vf,
             edges,
@@ -172,8 +173,8 @@ impl Topology {
             return VertexKind::Isolated;
         }
         let mut boundary = false;
-        for &e in self.vertex_edges(v) {
-            match self.edge_faces(e as usize).len() {
+        for e in self.vertex_edges(v) {
+            match self.edge_faces(e).len() {
                 1 => boundary = true,
                 2 => {}
                 _ => return VertexKind::NonManifold,
@@ -202,8 +203,8 @@ impl Topology {
             i
         }
         let mut components = faces.len();
-        for &e in self.vertex_edges(v) {
-            let ef = self.edge_faces(e as usize);
+        for e in self.vertex_edges(v) {
+            let ef = self.edge_faces(e);
             if ef.len() == 2 {
                 let a = faces.iter().position(|&f| f == ef[0]);
                 let b = faces.iter().position(|&f| f == ef[1]);
@@ -237,10 +238,27 @@ impl Topology {
         &self.vv[self.vv_offsets[v] as usize..self.vv_offsets[v + 1] as usize]
     }
 
-    /// Edge ids of vertex `v`'s edges, parallel to [`Topology::neighbors`].
+    /// Edge ids of vertex `v`'s edges, in the order of
+    /// [`Topology::neighbors`].
     #[inline]
-    pub fn vertex_edges(&self, v: usize) -> &[u32] {
-        &self.vv_edge[self.vv_offsets[v] as usize..self.vv_offsets[v + 1] as usize]
+    pub fn vertex_edges(&self, v: usize) -> impl Iterator<Item = usize> + '_ {
+        self.neighbors(v)
+            .iter()
+            .filter_map(move |&u| self.edge(v, u as usize))
+    }
+
+    /// The id of the edge joining `a` and `b`, if there is one: a binary
+    /// search among the few edges of the smaller end (no per-entry edge
+    /// ids stored: 4 bytes an edge end saved).
+    #[inline]
+    pub fn edge(&self, a: usize, b: usize) -> Option<usize> {
+        let (lo, hi) = (a.min(b), a.max(b) as u32);
+        let start = *self.edge_offsets.get(lo)? as usize;
+        let end = *self.edge_offsets.get(lo + 1)? as usize;
+        let i = self.edges[start..end]
+            .binary_search_by_key(&hi, |e| e[1])
+            .ok()?;
+        Some(start + i)
     }
 
     /// Faces using vertex `v`, each once, ascending.
@@ -374,6 +392,27 @@ pub(crate) mod tests {
         assert_eq!(t.kind(0), VertexKind::Boundary);
         assert_eq!(t.num_boundary_edges(), 12);
         assert_eq!(t.num_components(), 1);
+    }
+
+    #[test]
+    fn edge_ids_are_found_from_either_end() {
+        let m = grid(4);
+        let t = Topology::build(&m);
+        for (e, &[lo, hi]) in t.edges().iter().enumerate() {
+            assert_eq!(t.edge(lo as usize, hi as usize), Some(e));
+            assert_eq!(t.edge(hi as usize, lo as usize), Some(e));
+        }
+        for v in 0..m.num_vertices() {
+            let ids: Vec<usize> = t.vertex_edges(v).collect();
+            assert_eq!(ids.len(), t.neighbors(v).len());
+            for (&u, e) in t.neighbors(v).iter().zip(ids) {
+                let [a, b] = t.edges()[e];
+                assert!((a, b) == (v as u32, u) || (a, b) == (u, v as u32));
+            }
+        }
+        // Diagonal corners of a quad share no edge; a vertex none with itself.
+        assert_eq!(t.edge(0, 6), None);
+        assert_eq!(t.edge(3, 3), None);
     }
 
     #[test]

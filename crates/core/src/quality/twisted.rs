@@ -146,7 +146,7 @@ fn swap_with_twisted_neighbour(
         if topo.kind(a) != VertexKind::Interior || topo.kind(b) != VertexKind::Interior {
             continue;
         }
-        let Some(e) = edge_between(topo, a, b) else {
+        let Some(e) = topo.edge(a, b) else {
             continue;
         };
         let shares_twisted = topo
@@ -168,13 +168,6 @@ fn swap_with_twisted_neighbour(
         stats.rejected += 1;
     }
     false
-}
-
-/// The edge id joining `a` and `b`, if any.
-pub(crate) fn edge_between(topo: &Topology, a: usize, b: usize) -> Option<usize> {
-    let nb = topo.neighbors(a);
-    let i = nb.binary_search(&(b as u32)).ok()?;
-    Some(topo.vertex_edges(a)[i] as usize)
 }
 
 #[cfg(test)]

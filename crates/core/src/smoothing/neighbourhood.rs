@@ -93,6 +93,16 @@ pub struct ChunkWeights<'a> {
 }
 
 impl ChunkWeights<'_> {
+    /// Vertex `v`'s weights, which must lie in this chunk, as
+    /// [`NeighbourWeights::get_f32_into`] gives them.
+    pub fn get_f32_into(&self, v: usize, out: &mut Vec<f32>) {
+        debug_assert!(v - self.first < CHUNK);
+        let w = &self.weights[self.hoods.span(v)];
+        out.clear();
+        out.resize(w.len(), 0.0);
+        w.convert_to_f32_slice(out);
+    }
+
     /// Sets vertex `v`'s weights, which must lie in this chunk, rounded to
     /// half precision: `by_entry[i]` is the weight of its `i`-th neighbour
     /// in ascending order (the order of [`Neighbourhoods::get_into`]);

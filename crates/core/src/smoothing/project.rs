@@ -54,13 +54,39 @@ impl FitStats {
     }
 }
 
+/// What a [`fit_pass`] keeps for later passes to reuse its fits.
+#[derive(Debug)]
+pub struct Refit<'a> {
+    /// Each fitted vertex's linear weights ([`fit_neighbours_weighted`]),
+    /// made by the pass's `hoods`.
+    pub weights: &'a mut NeighbourWeights,
+    /// Per vertex, how far it has moved since its latest fit ([`Drift`]).
+    pub drift: &'a mut [f32],
+    /// [`step_limits`].
+    pub limits: &'a [f32],
+    /// The vertices to fit anew; the others move by their stored weights,
+    /// as in [`weighted_pass`], and keep them. `None`: all.
+    pub stale: Option<&'a [bool]>,
+}
+
+/// Per-vertex drift since the latest fit: the sum of the lengths of the
+/// moves made since (an upper bound on the distance), or infinity when that
+/// fit or a move on its weights failed (a fixed fit, a move cut to the step
+/// limit), so the vertex is refitted at the next chance.
+pub struct Drift;
+
+impl Drift {
+    /// The drift a vertex starts with: refit at the first chance.
+    pub const UNFITTED: f32 = f32::INFINITY;
+}
+
 /// One Jacobi pass: fits `model` to every movable vertex's neighbourhood in
 /// `positions` and writes each vertex's move to `out` (zero for immovable
 /// vertices; movable boundary vertices fit a plane). Neighbours
 /// whose normal makes a cosine below `min_cos` with the vertex's are left
 /// out of its fit ([`Facing`]).
-/// With `weights` (made by `hoods`), writes each fit's linear weights
-/// ([`fit_neighbours_weighted`]) for [`weighted_pass`].
+/// With `refit`, keeps each fit's linear weights and the vertices' drift
+/// for [`weighted_pass`], and fits only the stale vertices.
 /// Returns the fit statistics.
 #[allow(clippy::too_many_arguments)]
 pub fn fit_pass(
@@ -72,18 +98,27 @@ pub fn fit_pass(
     model: FitModel,
     min_cos: f64,
     out: &mut [Vec3],
-    weights: Option<&mut NeighbourWeights>,
+    refit: Option<Refit>,
 ) -> FitStats {
     let normals = vertex_normals_f32(mesh, topo, positions);
     let chunks = out.len().div_ceil(CHUNK);
-    let weights: Vec<Option<ChunkWeights>> = match weights {
-        Some(w) => w.chunks_mut(hoods).map(Some).collect(),
-        None => (0..chunks).map(|_| None).collect(),
+    type Kept<'b> = (ChunkWeights<'b>, &'b mut [f32]);
+    let (kept, limits, stale): (Vec<Option<Kept>>, &[f32], Option<&[bool]>) = match refit {
+        Some(r) => (
+            r.weights
+                .chunks_mut(hoods)
+                .zip(r.drift.chunks_mut(CHUNK))
+                .map(Some)
+                .collect(),
+            r.limits,
+            r.stale,
+        ),
+        None => ((0..chunks).map(|_| None).collect(), &[], None),
     };
     out.par_chunks_mut(CHUNK)
-        .zip(weights)
+        .zip(kept)
         .enumerate()
-        .map(|(c, (out, mut weights))| {
+        .map(|(c, (out, mut kept))| {
             let mut stats = FitStats::default();
             // Scratch for one vertex: its decoded list and fit weights.
             let (mut list, mut slot_weights) = (Vec::new(), Vec::new());
@@ -91,10 +126,31 @@ pub fn fit_pass(
                 let v = c * CHUNK + i;
                 let p = positions[v];
                 *o = Vec3::ZERO;
+                if let (Some((w, drift)), Some(stale)) = (kept.as_mut(), stale)
+                    && !stale[v]
+                {
+                    if movable[v] {
+                        w.get_f32_into(v, &mut slot_weights);
+                        let (m, d) = reused_move(
+                            mesh,
+                            topo,
+                            positions,
+                            hoods,
+                            &slot_weights,
+                            limits[v],
+                            v,
+                            &mut stats,
+                        );
+                        *o = m;
+                        drift[i] += d;
+                    }
+                    continue;
+                }
                 let n = normals[v].as_dvec3().normalize_or_zero();
                 if !movable[v] || n == DVec3::ZERO {
-                    if let Some(w) = weights.as_mut() {
+                    if let Some((w, drift)) = kept.as_mut() {
                         w.set(v, &[]);
+                        drift[i] = if movable[v] { Drift::UNFITTED } else { 0.0 };
                     }
                     continue;
                 }
@@ -110,8 +166,8 @@ pub fn fit_pass(
                 };
                 let frame = Frame::new(p, n);
                 hoods.get_into(v, &mut list);
-                let fit = match weights.as_mut() {
-                    Some(w) => {
+                let fit = match kept.as_mut() {
+                    Some((w, _)) => {
                         slot_weights.resize(list.len(), 0.0);
                         let fit = fit_neighbours_weighted(
                             &frame,
@@ -132,7 +188,16 @@ pub fn fit_pass(
                     FitKind::Plane => stats.plane_fallback += 1,
                     FitKind::Fixed => stats.fixed_fallback += 1,
                 }
-                *o = (step(topo, positions, v, fit.height(), &mut stats) * n).as_vec3();
+                let g = fit.height();
+                let cut = step(topo, positions, v, g, &mut stats);
+                *o = (cut * n).as_vec3();
+                if let Some((_, drift)) = kept.as_mut() {
+                    drift[i] = if fit.kind == FitKind::Fixed || cut != g {
+                        Drift::UNFITTED
+                    } else {
+                        cut.abs() as f32
+                    };
+                }
             }
             stats
         })
@@ -143,7 +208,8 @@ pub fn fit_pass(
 /// height its last fit's linear `weights` give for the current heights of
 /// its neighbours ([`fit_neighbours_weighted`]): the fit repeated with its
 /// frame coordinates and point weights kept, at the cost of one weighted
-/// sum, written as each vertex's move to `out`. (Keeping the fit's normal
+/// sum, written as each vertex's move to `out`, its length added to the
+/// vertex's `drift` ([`Drift`]). (Keeping the fit's normal
 /// as well would save summing face areas, and changes no figure of
 /// `examples/accuracy.rs`, but on the real brain meshes it leaves six
 /// times as many inverted faces and the neuron gains 30% in volume
@@ -162,39 +228,63 @@ pub fn weighted_pass(
     hoods: &Neighbourhoods,
     weights: &NeighbourWeights,
     limits: &[f32],
+    drift: &mut [f32],
     movable: &[bool],
     out: &mut [Vec3],
 ) -> FitStats {
     out.par_chunks_mut(CHUNK)
+        .zip(drift.par_chunks_mut(CHUNK))
         .enumerate()
-        .map(|(c, out)| {
+        .map(|(c, (out, drift))| {
             let mut stats = FitStats::default();
             let mut w = Vec::new();
-            for (i, o) in out.iter_mut().enumerate() {
+            for (i, (o, drift)) in out.iter_mut().zip(drift).enumerate() {
                 let v = c * CHUNK + i;
-                let p = positions[v];
                 *o = Vec3::ZERO;
                 if !movable[v] {
                     continue;
                 }
-                let n = vertex_normal(mesh, topo, positions, v);
                 weights.get_f32_into(hoods, v, &mut w);
-                let mut d = DVec3::ZERO;
-                for (unit, j) in hoods.entries(v) {
-                    let a = w.get(unit).copied().unwrap_or(0.0);
-                    d += f64::from(a) * (positions[j as usize] - p);
-                }
-                let g = d.dot(n);
-                if g.abs() > f64::from(limits[v]) || !g.is_finite() {
-                    stats.clamped += 1;
-                    continue;
-                }
-                *o = (g * n).as_vec3();
-                stats.max_displacement = stats.max_displacement.max(g.abs());
+                let (m, d) =
+                    reused_move(mesh, topo, positions, hoods, &w, limits[v], v, &mut stats);
+                *o = m;
+                *drift += d;
             }
             stats
         })
         .reduce(FitStats::default, FitStats::merge)
+}
+
+/// Vertex `v`'s move by its stored fit weights `w` (laid out by unit,
+/// [`NeighbourWeights::get_f32_into`]) along its current normal, and the
+/// drift it adds ([`Drift`]): its length, or infinity when it is cut to
+/// zero beyond `limit` (counted as clamped, [`weighted_pass`]).
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn reused_move(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &[DVec3],
+    hoods: &Neighbourhoods,
+    w: &[f32],
+    limit: f32,
+    v: usize,
+    stats: &mut FitStats,
+) -> (Vec3, f32) {
+    let p = positions[v];
+    let n = vertex_normal(mesh, topo, positions, v);
+    let mut d = DVec3::ZERO;
+    for (unit, j) in hoods.entries(v) {
+        let a = w.get(unit).copied().unwrap_or(0.0);
+        d += f64::from(a) * (positions[j as usize] - p);
+    }
+    let g = d.dot(n);
+    if g.abs() > f64::from(limit) || !g.is_finite() {
+        stats.clamped += 1;
+        return (Vec3::ZERO, Drift::UNFITTED);
+    }
+    stats.max_displacement = stats.max_displacement.max(g.abs());
+    ((g * n).as_vec3(), g.abs() as f32)
 }
 
 /// The largest move [`weighted_pass`] accepts at each vertex: [`MAX_STEP`]
@@ -240,7 +330,7 @@ mod tests {
     use crate::mesh::test_grid as grid;
 
     #[test]
-    fn a_reused_fit_never_jumps_beyond_an_input_edge() {
+    fn a_reused_fit_never_jumps_beyond_an_input_edge_and_asks_for_a_refit() {
         // A flat unit grid whose centre vertex puts all its weight on one
         // neighbour: the vertex follows that neighbour's height while it
         // stays within one input edge length, and stays put beyond.
@@ -263,16 +353,20 @@ mod tests {
         for (lift, moves) in [(0.5, true), (3.0, false)] {
             let mut p = mesh.positions().to_vec();
             p[target] += lift * edge * normal;
+            let mut drift = vec![0.25f32; mesh.num_vertices()];
             let stats = weighted_pass(
-                &mesh, &topo, &p, &hoods, &weights, &limits, &movable, &mut out,
+                &mesh, &topo, &p, &hoods, &weights, &limits, &mut drift, &movable, &mut out,
             );
             let moved = f64::from(out[centre].length());
             if moves {
                 assert!(moved > 0.3 * edge, "followed by {moved}");
                 assert_eq!(stats.clamped, 0);
+                assert!((f64::from(drift[centre]) - 0.25 - moved).abs() < 1e-6);
             } else {
                 assert_eq!(moved, 0.0);
                 assert_eq!(stats.clamped, 1);
+                // A failed move asks for a refit.
+                assert_eq!(drift[centre], Drift::UNFITTED);
             }
         }
     }
