@@ -2,7 +2,7 @@
 //!
 //! [`read`] turns uploaded bytes into a [`Document`]: the [`Mesh`] to smooth
 //! plus whatever the format needs to write the same file back with only the
-//! positions changed. [`write`] does that, in the input's format or another.
+//! positions changed. [`write()`] does that, in the input's format or another.
 //! Nothing a file points to (external buffers, material libraries) is ever
 //! fetched.
 
@@ -463,7 +463,7 @@ pub fn write(doc: &Document, positions: &[DVec3], format: Format) -> Result<Vec<
     write_with(doc, positions, format, &WriteOptions::default())
 }
 
-/// [`write`] with options: per-vertex results and STL encoding. Writing in
+/// [`write()`] with options: per-vertex results and STL encoding. Writing in
 /// the input's format (`.gltf` and `.glb` count as one) keeps the file's
 /// vertex count and order: welded vertices get their welded vertex's
 /// position.
@@ -584,7 +584,7 @@ impl Document {
             .map_or(self.mesh.num_vertices(), Vec::len)
     }
 
-    /// [`write`] as a method: `doc.write_as(positions, format)`.
+    /// [`write()`] as a method: `doc.write_as(positions, format)`.
     pub fn write_as(&self, positions: &[DVec3], format: Format) -> Result<Vec<u8>, IoError> {
         write(self, positions, format)
     }

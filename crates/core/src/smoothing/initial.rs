@@ -2,7 +2,7 @@
 //! fits over the fixed 2-ring of every vertex.
 
 use super::neighbourhood::Neighbourhoods;
-use super::project::{Drift, FitStats, Refit, fit_pass, step_limits, weighted_pass};
+use super::project::{FitStats, Refit, UNFITTED_DRIFT, fit_pass, step_limits, weighted_pass};
 use super::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
 use crate::pipeline::{Cancelled, check};
@@ -43,7 +43,7 @@ pub fn smooth_passes(
     let mut kept = (0..passes).any(|p| !refits(p)).then(|| {
         (
             hoods.zero_weights(),
-            vec![Drift::UNFITTED; positions.len()],
+            vec![UNFITTED_DRIFT; positions.len()],
             step_limits(mesh, topo),
         )
     });
@@ -89,7 +89,7 @@ pub fn smooth_passes(
 }
 
 /// The vertices a selective refit fits anew: those where the vertex or one
-/// of its neighbours drifted ([`Drift`]) more than `tolerance` times the
+/// of its neighbours drifted ([`UNFITTED_DRIFT`]) more than `tolerance` times the
 /// vertex's step limit (its mean input edge length) since its latest fit.
 pub fn stale_vertices(topo: &Topology, drift: &[f32], limits: &[f32], tolerance: f32) -> Vec<bool> {
     (0..drift.len())
@@ -212,7 +212,7 @@ mod tests {
         let mut drift = vec![0.0f32; mesh.num_vertices()];
         let (moved, failed, settled) = (6usize, 18usize, 12usize);
         drift[moved] = 0.03;
-        drift[failed] = Drift::UNFITTED;
+        drift[failed] = UNFITTED_DRIFT;
         drift[settled] = 0.01;
         let stale = stale_vertices(&topo, &drift, &limits, 0.02);
         for (v, &is_stale) in stale.iter().enumerate() {

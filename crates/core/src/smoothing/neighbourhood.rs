@@ -20,7 +20,7 @@ use std::ops::Range;
 ///
 /// A list is stored in 16-bit units: its smallest entry in two units (low,
 /// high half), then each following entry (in ascending order) as its gap to
-/// the one before, one unit when the gap is below [`ESCAPE`], else the unit
+/// the one before, one unit when the gap is below `ESCAPE` (`0xFFFF`), else the unit
 /// `ESCAPE` and two units for the gap. Entry `i` starts at a unit of its
 /// own, which is where [`NeighbourWeights`] keeps its weight.
 #[derive(Debug, Clone, Default)]

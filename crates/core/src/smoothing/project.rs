@@ -60,7 +60,7 @@ pub struct Refit<'a> {
     /// Each fitted vertex's linear weights ([`fit_neighbours_weighted`]),
     /// made by the pass's `hoods`.
     pub weights: &'a mut NeighbourWeights,
-    /// Per vertex, how far it has moved since its latest fit ([`Drift`]).
+    /// Per vertex, how far it has moved since its latest fit ([`UNFITTED_DRIFT`]).
     pub drift: &'a mut [f32],
     /// [`step_limits`].
     pub limits: &'a [f32],
@@ -69,16 +69,12 @@ pub struct Refit<'a> {
     pub stale: Option<&'a [bool]>,
 }
 
-/// Per-vertex drift since the latest fit: the sum of the lengths of the
-/// moves made since (an upper bound on the distance), or infinity when that
-/// fit or a move on its weights failed (a fixed fit, a move cut to the step
-/// limit), so the vertex is refitted at the next chance.
-pub struct Drift;
-
-impl Drift {
-    /// The drift a vertex starts with: refit at the first chance.
-    pub const UNFITTED: f32 = f32::INFINITY;
-}
+/// A vertex's drift is how far it has moved since its latest fit: the sum
+/// of the lengths of its moves since (an upper bound on the distance). It
+/// is `UNFITTED_DRIFT` before the first fit and when that fit or a move on
+/// its weights failed (a fixed fit, a move cut to the step limit), so the
+/// vertex is refitted at the next chance.
+pub const UNFITTED_DRIFT: f32 = f32::INFINITY;
 
 /// One Jacobi pass: fits `model` to every movable vertex's neighbourhood in
 /// `positions` and writes each vertex's move to `out` (zero for immovable
@@ -86,7 +82,8 @@ impl Drift {
 /// whose normal makes a cosine below `min_cos` with the vertex's are left
 /// out of its fit ([`Facing`]).
 /// With `refit`, keeps each fit's linear weights and the vertices' drift
-/// for [`weighted_pass`], and fits only the stale vertices.
+/// for [`weighted_pass`], and fits only `refit.stale` vertices (all when
+/// `None`).
 /// Returns the fit statistics.
 #[allow(clippy::too_many_arguments)]
 pub fn fit_pass(
@@ -150,7 +147,7 @@ pub fn fit_pass(
                 if !movable[v] || n == DVec3::ZERO {
                     if let Some((w, drift)) = kept.as_mut() {
                         w.set(v, &[]);
-                        drift[i] = if movable[v] { Drift::UNFITTED } else { 0.0 };
+                        drift[i] = if movable[v] { UNFITTED_DRIFT } else { 0.0 };
                     }
                     continue;
                 }
@@ -193,7 +190,7 @@ pub fn fit_pass(
                 *o = (cut * n).as_vec3();
                 if let Some((_, drift)) = kept.as_mut() {
                     drift[i] = if fit.kind == FitKind::Fixed || cut != g {
-                        Drift::UNFITTED
+                        UNFITTED_DRIFT
                     } else {
                         cut.abs() as f32
                     };
@@ -209,7 +206,7 @@ pub fn fit_pass(
 /// its neighbours ([`fit_neighbours_weighted`]): the fit repeated with its
 /// frame coordinates and point weights kept, at the cost of one weighted
 /// sum, written as each vertex's move to `out`, its length added to the
-/// vertex's `drift` ([`Drift`]). (Keeping the fit's normal
+/// vertex's `drift` ([`UNFITTED_DRIFT`]). (Keeping the fit's normal
 /// as well would save summing face areas, and changes no figure of
 /// `examples/accuracy.rs`, but on the real brain meshes it leaves six
 /// times as many inverted faces and the neuron gains 30% in volume
@@ -257,7 +254,7 @@ pub fn weighted_pass(
 
 /// Vertex `v`'s move by its stored fit weights `w` (laid out by unit,
 /// [`NeighbourWeights::get_f32_into`]) along its current normal, and the
-/// drift it adds ([`Drift`]): its length, or infinity when it is cut to
+/// drift it adds ([`UNFITTED_DRIFT`]): its length, or infinity when it is cut to
 /// zero beyond `limit` (counted as clamped, [`weighted_pass`]).
 #[allow(clippy::too_many_arguments)]
 #[inline]
@@ -281,7 +278,7 @@ fn reused_move(
     let g = d.dot(n);
     if g.abs() > f64::from(limit) || !g.is_finite() {
         stats.clamped += 1;
-        return (Vec3::ZERO, Drift::UNFITTED);
+        return (Vec3::ZERO, UNFITTED_DRIFT);
     }
     stats.max_displacement = stats.max_displacement.max(g.abs());
     ((g * n).as_vec3(), g.abs() as f32)
@@ -366,7 +363,7 @@ mod tests {
                 assert_eq!(moved, 0.0);
                 assert_eq!(stats.clamped, 1);
                 // A failed move asks for a refit.
-                assert_eq!(drift[centre], Drift::UNFITTED);
+                assert_eq!(drift[centre], UNFITTED_DRIFT);
             }
         }
     }
