@@ -109,7 +109,7 @@ impl Topology {
         }
         edge_offsets.push(edges.len() as u32);
         drop(half);
-        // Vertex -> vertex (with edge ids), sorted by neighbour within a vertex
+        // Vertex -> vertex, sorted by neighbour within a vertex
         // because edges are produced in (lo, hi) order.
         let mut vv_offsets = vec![0u32; n + 1];
         for e in &edges {

@@ -55,7 +55,10 @@ pub fn smooth_passes(
                 mesh, topo, positions, hoods, weights, limits, drift, movable, &mut moves,
             ),
             Some((weights, drift, limits)) => {
-                let stale = refit_tolerance.map(|t| stale_vertices(topo, drift, limits, t));
+                // Before the first fit every vertex is stale.
+                let stale = refit_tolerance
+                    .filter(|_| pass > 0)
+                    .map(|t| stale_vertices(topo, drift, limits, t));
                 fit_pass(
                     mesh,
                     topo,
@@ -89,8 +92,9 @@ pub fn smooth_passes(
 }
 
 /// The vertices a selective refit fits anew: those where the vertex or one
-/// of its neighbours drifted ([`UNFITTED_DRIFT`]) more than `tolerance` times the
-/// vertex's step limit (its mean input edge length) since its latest fit.
+/// of its neighbours drifted ([`UNFITTED_DRIFT`]) more than `tolerance`
+/// times the vertex's step limit (its mean input edge length) since its
+/// latest fit.
 pub fn stale_vertices(topo: &Topology, drift: &[f32], limits: &[f32], tolerance: f32) -> Vec<bool> {
     (0..drift.len())
         .into_par_iter()

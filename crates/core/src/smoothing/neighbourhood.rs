@@ -61,10 +61,7 @@ impl NeighbourWeights {
     /// vector conversion instead of one per weight.
     #[inline]
     pub fn get_f32_into(&self, hoods: &Neighbourhoods, v: usize, out: &mut Vec<f32>) {
-        let w = self.get(hoods, v);
-        out.clear();
-        out.resize(w.len(), 0.0);
-        w.convert_to_f32_slice(out);
+        widen_into(self.get(hoods, v), out);
     }
 
     /// Every chunk of `CHUNK` vertices with a function setting vertex `v`'s
@@ -85,6 +82,15 @@ impl NeighbourWeights {
     }
 }
 
+/// `w` converted to single precision into `out` (cleared first): one vector
+/// conversion instead of one per weight.
+#[inline]
+fn widen_into(w: &[f16], out: &mut Vec<f32>) {
+    out.clear();
+    out.resize(w.len(), 0.0);
+    w.convert_to_f32_slice(out);
+}
+
 /// The weights of one chunk of vertices ([`NeighbourWeights::chunks_mut`]).
 pub struct ChunkWeights<'a> {
     first: usize,
@@ -97,10 +103,7 @@ impl ChunkWeights<'_> {
     /// [`NeighbourWeights::get_f32_into`] gives them.
     pub fn get_f32_into(&self, v: usize, out: &mut Vec<f32>) {
         debug_assert!(v - self.first < CHUNK);
-        let w = &self.weights[self.hoods.span(v)];
-        out.clear();
-        out.resize(w.len(), 0.0);
-        w.convert_to_f32_slice(out);
+        widen_into(&self.weights[self.hoods.span(v)], out);
     }
 
     /// Sets vertex `v`'s weights, which must lie in this chunk, rounded to
