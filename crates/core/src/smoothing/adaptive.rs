@@ -213,48 +213,45 @@ fn grow(
     }
     let centre = positions[v];
     let normal = normals[v].as_dvec3().normalize_or_zero();
+    let own = 1u8 << labels[v] as u8;
     let mut s_k = m.std();
+    let mut scratch = RingScratch::default();
     while w.rings() < rule.k_max as usize {
         let candidates = w.grow_beam(topo, BEAM_WIDTH);
         if candidates.is_empty() {
             w.discard_last();
             break;
         }
-        let own = 1u8 << labels[v] as u8;
-        let disagreeing: usize = candidates
-            .iter()
-            .map(|&j| usize::from(agreement[j as usize] & own == 0))
-            .sum();
-        if disagreeing as f64 > rule.label_disagreement * candidates.len() as f64 {
+        let ring = ring_stats(
+            candidates,
+            positions,
+            centre,
+            normal,
+            agreement,
+            own,
+            h_scaled,
+            &mut scratch,
+        );
+        if ring.disagreeing as f64 > rule.label_disagreement * candidates.len() as f64 {
             w.discard_last();
             break;
-        }
-        let mut grown = m;
-        let (mut bend, mut radius2) = (0.0f64, 0.0);
-        for &j in candidates {
-            grown.add(h_scaled[j as usize].into());
-            let d = positions[j as usize] - centre;
-            let z = d.dot(normal);
-            let r2 = (d.length_squared() - z * z).max(0.0);
-            radius2 += r2;
-            // Finite and non-negative: a plain comparison (one `maxsd`)
-            // instead of `f64::max`'s NaN handling.
-            let b = if r2 > 0.0 { z.abs() / r2 } else { 0.0 };
-            if b > bend {
-                bend = b;
-            }
         }
         // A candidate at height `z` over the tangent plane and radius `rho`
         // implies a normal curvature `2 z / rho^2`; the largest over the ring
         // estimates `kappa_max`, and a fit out to the ring's mean radius
         // then sits `rho^4 kappa^3 / 48` above the surface.
-        let rho2 = radius2 / candidates.len() as f64;
-        let kappa = 2.0 * bend;
+        let rho2 = ring.radius2 / candidates.len() as f64;
+        let kappa = 2.0 * ring.bend;
         let bias = rho2 * rho2 * kappa.powi(3) / 48.0;
         if bias > rule.bias_bound * rule.edge_length {
             w.discard_last();
             break;
         }
+        let grown = Moments {
+            n: m.n + candidates.len() as f64,
+            sum: m.sum + ring.h_sum,
+            sum2: m.sum2 + ring.h_sum2,
+        };
         let s_next = grown.std();
         if !(s_next <= s_k + rule.std_tolerance && s_next <= rule.std_bound) {
             w.discard_last();
@@ -267,9 +264,212 @@ fn grow(
     w.rings()
 }
 
+/// What the growth rule reads from the candidates of one new ring.
+struct RingStats {
+    /// Candidates that disagree with the vertex's label.
+    disagreeing: usize,
+    /// Sum of the candidates' `H l`.
+    h_sum: f64,
+    /// Sum of their squares.
+    h_sum2: f64,
+    /// Sum of their squared distances from the vertex's normal line.
+    radius2: f64,
+    /// Largest `|z| / rho^2` (height over the tangent plane by squared
+    /// distance from the normal line) among them.
+    bend: f64,
+}
+
+/// Independent partial sums in the ring statistics: candidate `k` of a
+/// block goes to lane `k % LANES`, and the lanes are combined in a fixed
+/// order, so the result does not depend on how the code is vectorised.
+const LANES: usize = 4;
+
+/// Candidates gathered per block of [`ring_stats`].
+const BLOCK: usize = 64;
+
+/// One block of candidates in structure-of-arrays form, relative to the
+/// growing vertex, zero-padded to whole lanes.
+struct RingScratch {
+    x: [f64; BLOCK],
+    y: [f64; BLOCK],
+    z: [f64; BLOCK],
+    h: [f64; BLOCK],
+}
+
+impl Default for RingScratch {
+    fn default() -> Self {
+        RingScratch {
+            x: [0.0; BLOCK],
+            y: [0.0; BLOCK],
+            z: [0.0; BLOCK],
+            h: [0.0; BLOCK],
+        }
+    }
+}
+
+/// The [`RingStats`] of `candidates` around `centre` with unit `normal`;
+/// `own` is the bit of the label they should agree with
+/// ([`agreement_masks`]). The candidates are gathered a block at a time,
+/// then the arithmetic runs in vector lanes (AVX2 where the CPU has it).
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn ring_stats(
+    candidates: &[u32],
+    positions: &[DVec3],
+    centre: DVec3,
+    normal: DVec3,
+    agreement: &[u8],
+    own: u8,
+    h_scaled: &[f32],
+    scratch: &mut RingScratch,
+) -> RingStats {
+    let mut disagreeing = 0;
+    let mut acc = RingLanes::default();
+    for block in candidates.chunks(BLOCK) {
+        for (k, &j) in block.iter().enumerate() {
+            let j = j as usize;
+            disagreeing += usize::from(agreement[j] & own == 0);
+            let d = positions[j] - centre;
+            (scratch.x[k], scratch.y[k], scratch.z[k]) = (d.x, d.y, d.z);
+            scratch.h[k] = f64::from(h_scaled[j]);
+        }
+        let padded = block.len().next_multiple_of(LANES);
+        for k in block.len()..padded {
+            (scratch.x[k], scratch.y[k], scratch.z[k], scratch.h[k]) = (0.0, 0.0, 0.0, 0.0);
+        }
+        acc.add_block(scratch, padded, normal);
+    }
+    let total = |a: [f64; LANES]| (a[0] + a[1]) + (a[2] + a[3]);
+    RingStats {
+        disagreeing,
+        h_sum: total(acc.h_sum),
+        h_sum2: total(acc.h_sum2),
+        radius2: total(acc.radius2),
+        bend: acc
+            .bend
+            .into_iter()
+            .fold(0.0, |m, b| if b > m { b } else { m }),
+    }
+}
+
+/// Lane sums of [`ring_stats`].
+#[derive(Default)]
+struct RingLanes {
+    h_sum: [f64; LANES],
+    h_sum2: [f64; LANES],
+    radius2: [f64; LANES],
+    bend: [f64; LANES],
+}
+
+impl RingLanes {
+    /// Adds the first `len` (a multiple of [`LANES`]) gathered candidates.
+    #[inline]
+    fn add_block(&mut self, s: &RingScratch, len: usize, normal: DVec3) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked just above).
+            return unsafe { self.add_block_avx2(s, len, normal) };
+        }
+        self.add_block_lanes(s, len, normal);
+    }
+
+    /// [`RingLanes::add_block_lanes`] compiled for AVX2 (same operations,
+    /// same order: identical results).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn add_block_avx2(&mut self, s: &RingScratch, len: usize, normal: DVec3) {
+        self.add_block_lanes(s, len, normal);
+    }
+
+    #[inline(always)]
+    fn add_block_lanes(&mut self, s: &RingScratch, len: usize, normal: DVec3) {
+        type Lanes = [f64; LANES];
+        let at = |a: &[f64; BLOCK], k: usize| -> Lanes { std::array::from_fn(|i| a[k + i]) };
+        let (mut h_sum, mut h_sum2) = (self.h_sum, self.h_sum2);
+        let (mut radius2, mut bend) = (self.radius2, self.bend);
+        for k in (0..len.min(BLOCK)).step_by(LANES) {
+            let (x, y, zc, h) = (at(&s.x, k), at(&s.y, k), at(&s.z, k), at(&s.h, k));
+            // As `DVec3::dot` and `length_squared` compute them.
+            let z: Lanes =
+                std::array::from_fn(|i| x[i] * normal.x + y[i] * normal.y + zc[i] * normal.z);
+            let r2: Lanes = std::array::from_fn(|i| {
+                let t = x[i] * x[i] + y[i] * y[i] + zc[i] * zc[i] - z[i] * z[i];
+                if t > 0.0 { t } else { 0.0 }
+            });
+            // Finite and non-negative: plain comparisons instead of
+            // `f64::max`'s NaN handling.
+            let b: Lanes = std::array::from_fn(|i| {
+                let q = z[i].abs() / r2[i];
+                if r2[i] > 0.0 { q } else { 0.0 }
+            });
+            radius2 = std::array::from_fn(|i| radius2[i] + r2[i]);
+            bend = std::array::from_fn(|i| if b[i] > bend[i] { b[i] } else { bend[i] });
+            h_sum = std::array::from_fn(|i| h_sum[i] + h[i]);
+            h_sum2 = std::array::from_fn(|i| h_sum2[i] + h[i] * h[i]);
+        }
+        (self.h_sum, self.h_sum2, self.radius2, self.bend) = (h_sum, h_sum2, radius2, bend);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn ring_statistics_match_a_plain_loop_over_the_candidates() {
+        // More candidates than one block, one of them on the normal line.
+        let n = 150;
+        let positions: Vec<DVec3> = (0..n)
+            .map(|i| {
+                let t = i as f64;
+                DVec3::new((t * 0.37).sin() * t, (t * 0.73).cos() * t, (t * 0.11).sin())
+            })
+            .collect();
+        let h_scaled: Vec<f32> = (0..n).map(|i| (i as f32 * 0.01).sin()).collect();
+        let agreement: Vec<u8> = (0..n)
+            .map(|i| if i % 3 == 0 { 0b0010 } else { 0b0001 })
+            .collect();
+        let centre = DVec3::new(0.0, 0.0, 0.5);
+        let normal = DVec3::Z;
+        let mut candidates: Vec<u32> = (1..n as u32).rev().collect();
+        candidates.push(0);
+        let mut positions = positions;
+        positions[0] = centre + 2.0 * normal;
+        let mut scratch = RingScratch::default();
+        let got = ring_stats(
+            &candidates,
+            &positions,
+            centre,
+            normal,
+            &agreement,
+            0b0001,
+            &h_scaled,
+            &mut scratch,
+        );
+        let (mut h_sum, mut h_sum2, mut radius2, mut bend) = (0.0, 0.0, 0.0, 0.0f64);
+        for &j in &candidates {
+            let h = f64::from(h_scaled[j as usize]);
+            h_sum += h;
+            h_sum2 += h * h;
+            let d = positions[j as usize] - centre;
+            let z = d.dot(normal);
+            let r2 = (d.length_squared() - z * z).max(0.0);
+            radius2 += r2;
+            if r2 > 0.0 {
+                bend = bend.max(z.abs() / r2);
+            }
+        }
+        assert_eq!(
+            got.disagreeing,
+            candidates.iter().filter(|&&j| j % 3 == 0).count()
+        );
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs().max(1.0);
+        assert!(close(got.h_sum, h_sum), "{} vs {h_sum}", got.h_sum);
+        assert!(close(got.h_sum2, h_sum2));
+        assert!(close(got.radius2, radius2));
+        assert_eq!(got.bend, bend, "a maximum has no rounding");
+        assert!(bend > 0.0 && bend.is_finite());
+    }
 
     #[test]
     fn refits_double_their_gap() {
