@@ -10,7 +10,9 @@
 use super::frame::Frame;
 use super::neighbourhood::{CHUNK, ChunkWeights, NeighbourWeights, Neighbourhoods};
 use super::normals::{vertex_normal, vertex_normals_f32};
-use super::quadric_fit::{Facing, FitKind, FitModel, fit_neighbours, fit_neighbours_weighted};
+use super::quadric_fit::{
+    Facing, FitHeight, FitKind, FitModel, fit_neighbours, fit_neighbours_weighted,
+};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -177,7 +179,13 @@ pub fn fit_pass(
                         w.set(v, &slot_weights);
                         fit
                     }
-                    None => fit_neighbours(&frame, positions, &list, model, Some(facing)),
+                    None => {
+                        let fit = fit_neighbours(&frame, positions, &list, model, Some(facing));
+                        FitHeight {
+                            kind: fit.kind,
+                            height: fit.height(),
+                        }
+                    }
                 };
                 match fit.kind {
                     FitKind::Cubic => stats.cubic += 1,
@@ -185,7 +193,7 @@ pub fn fit_pass(
                     FitKind::Plane => stats.plane_fallback += 1,
                     FitKind::Fixed => stats.fixed_fallback += 1,
                 }
-                let g = fit.height();
+                let g = fit.height;
                 let cut = step(topo, positions, v, g, &mut stats);
                 *o = (cut * n).as_vec3();
                 if let Some((_, drift)) = kept.as_mut() {

@@ -109,6 +109,15 @@ impl QuadricFit {
         }
     }
 
+    /// A fit known only by its height `g` (in the frame's units): what a
+    /// cubic fit made for its linear weights solves for.
+    fn height_only(g: f64, kind: FitKind) -> QuadricFit {
+        QuadricFit {
+            coeffs: [0.0, 0.0, 0.0, 0.0, 0.0, g],
+            kind,
+        }
+    }
+
     /// Height of the fitted surface above the vertex, `h(0, 0) = g`.
     #[inline]
     pub fn height(&self) -> f64 {
@@ -172,7 +181,9 @@ pub fn fit_neighbours(
 /// the fit weigh 0; so do all of them when the vertex is fixed. The
 /// weights sum to 1 and annul `x` and `y` (the model holds the constant
 /// and the linear terms), so a small tilt of the frame leaves the height
-/// unchanged.
+/// unchanged. Returns the model used and the fitted height only: a cubic
+/// fit then solves for its height alone, as the weights' sum over the
+/// heights (the same height up to rounding).
 pub fn fit_neighbours_weighted(
     frame: &Frame,
     positions: &[DVec3],
@@ -180,9 +191,23 @@ pub fn fit_neighbours_weighted(
     model: FitModel,
     facing: Option<Facing>,
     weights: &mut [f32],
-) -> QuadricFit {
+) -> FitHeight {
     weights.fill(0.0);
-    gather_and_fit(frame, positions, neighbours, model, facing, Some(weights))
+    let fit = gather_and_fit(frame, positions, neighbours, model, facing, Some(weights));
+    FitHeight {
+        kind: fit.kind,
+        height: fit.height(),
+    }
+}
+
+/// The model a fit used and its height: what a smoothing pass needs of it
+/// ([`fit_neighbours_weighted`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FitHeight {
+    /// Model used.
+    pub kind: FitKind,
+    /// Height of the fitted surface above the vertex, `g`.
+    pub height: f64,
 }
 
 fn gather_and_fit(
@@ -428,11 +453,11 @@ fn fit_points(
 
 /// `M^-1 e` for the factorised normal matrix `ldl` of a basis, `e` selecting
 /// its constant term (index 5 of the quadric and cubic bases, 2 of the
-/// plane's); zero if not finite.
-fn solve_for_constant<const N: usize>(ldl: &[[f64; N]; N]) -> [f64; N] {
+/// plane's); `None` if not finite.
+fn solve_for_constant<const N: usize>(ldl: &[[f64; N]; N]) -> Option<[f64; N]> {
     let mut e = [0.0; N];
     e[if N == 3 { 2 } else { 5 }] = 1.0;
-    ldl_solve(ldl, &e).unwrap_or([0.0; N])
+    ldl_solve(ldl, &e)
 }
 
 /// The linear weights of a solved quadric or plane fit: with `ldl` the
@@ -448,7 +473,7 @@ fn linear_weights<const N: usize>(
     ldl: &[[f64; N]; N],
     out: &mut [f64],
 ) {
-    let z = solve_for_constant(ldl);
+    let z = solve_for_constant(ldl).unwrap_or([0.0; N]);
     for (l, a) in local.iter().zip(out.iter_mut()) {
         let (x, y, h) = (l.x * inv_s, l.y * inv_s, l.z * inv_s);
         let w = weight(x * x + y * y + h * h);
@@ -486,12 +511,13 @@ const fn moment_index(i: usize, j: usize) -> usize {
     d * (d + 1) / 2 + j
 }
 
-/// Weighted moments of the cubic fit: `sum w x^i y^j` for `i + j <= 6` and
-/// `sum w z x^i y^j` for `i + j <= 3` (indexed by [`moment_index`]), over
-/// scaled points in structure-of-arrays form padded to whole lanes
-/// (`ws` is 1 for a point, 0 for padding), in four fixed lanes like
-/// [`moments`]. Leaves each point's kernel weight `w` in `ws`.
-fn cubic_moments(xs: &[f64], ys: &[f64], zs: &[f64], ws: &mut [f64]) -> ([f64; 28], [f64; 10]) {
+/// Weighted moments of the cubic fit's normal matrix, `sum w x^i y^j` for
+/// `i + j <= 6` (indexed by [`moment_index`]), over scaled points in
+/// structure-of-arrays form padded to whole lanes (`ws` is 1 for a point,
+/// 0 for padding), in four fixed lanes like [`moments`]. Leaves each
+/// point's kernel weight `w` in `ws` (for [`cubic_height_moments`] and the
+/// linear weights).
+fn cubic_moments(xs: &[f64], ys: &[f64], zs: &[f64], ws: &mut [f64]) -> [f64; 28] {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2 (checked just above).
@@ -504,13 +530,42 @@ fn cubic_moments(xs: &[f64], ys: &[f64], zs: &[f64], ws: &mut [f64]) -> ([f64; 2
 /// identical results).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn cubic_moments_avx2(
-    xs: &[f64],
-    ys: &[f64],
-    zs: &[f64],
-    ws: &mut [f64],
-) -> ([f64; 28], [f64; 10]) {
+fn cubic_moments_avx2(xs: &[f64], ys: &[f64], zs: &[f64], ws: &mut [f64]) -> [f64; 28] {
     cubic_moments_lanes(xs, ys, zs, ws)
+}
+
+/// The cubic fit's right-hand side, `sum w z x^i y^j` for `i + j <= 3`
+/// (indexed by [`moment_index`]), with the kernel weights `ws` that
+/// [`cubic_moments`] left, in the same four lanes.
+fn cubic_height_moments(xs: &[f64], ys: &[f64], zs: &[f64], ws: &[f64]) -> [f64; 10] {
+    let mut acc_z = [[0.0f64; LANES]; 10];
+    for (((x, y), z), ws) in xs
+        .chunks_exact(LANES)
+        .zip(ys.chunks_exact(LANES))
+        .zip(zs.chunks_exact(LANES))
+        .zip(ws.chunks_exact(LANES))
+    {
+        let (x, y, z, w) = (lanes(x), lanes(y), lanes(z), lanes(ws));
+        let mut wx = [[0.0; LANES]; 4];
+        let mut yp = [[0.0; LANES]; 4];
+        wx[0] = w;
+        yp[0] = [1.0; LANES];
+        for q in 1..4 {
+            wx[q] = mul(wx[q - 1], x);
+            yp[q] = mul(yp[q - 1], y);
+        }
+        add(&mut acc_z[0], mul(mul(wx[0], yp[0]), z));
+        add(&mut acc_z[1], mul(mul(wx[1], yp[0]), z));
+        add(&mut acc_z[2], mul(mul(wx[0], yp[1]), z));
+        add(&mut acc_z[3], mul(mul(wx[2], yp[0]), z));
+        add(&mut acc_z[4], mul(mul(wx[1], yp[1]), z));
+        add(&mut acc_z[5], mul(mul(wx[0], yp[2]), z));
+        add(&mut acc_z[6], mul(mul(wx[3], yp[0]), z));
+        add(&mut acc_z[7], mul(mul(wx[2], yp[1]), z));
+        add(&mut acc_z[8], mul(mul(wx[1], yp[2]), z));
+        add(&mut acc_z[9], mul(mul(wx[0], yp[3]), z));
+    }
+    acc_z.map(|a| (a[0] + a[1]) + (a[2] + a[3]))
 }
 
 /// Four lanes of one quantity.
@@ -536,20 +591,14 @@ fn lanes(a: &[f64]) -> Lanes {
 /// The moments over padded coordinate arrays (see [`cubic_moments`]);
 /// every line of the loop is one vector operation.
 #[inline(always)]
-fn cubic_moments_lanes(
-    xs: &[f64],
-    ys: &[f64],
-    zs: &[f64],
-    ws: &mut [f64],
-) -> ([f64; 28], [f64; 10]) {
+fn cubic_moments_lanes(xs: &[f64], ys: &[f64], zs: &[f64], ws: &mut [f64]) -> [f64; 28] {
     let mut acc = [[0.0f64; LANES]; 28];
-    let mut acc_z = [[0.0f64; LANES]; 10];
     // Three sweeps over the (small, cached) points, each with few enough
     // sums to stay in vector registers: the kernel weights and the moments
-    // of degree up to 3, then degrees 4 and 5, then degree 6 and the
-    // right-hand side. Each sum still adds its points in order. The terms
-    // are written out: a loop over `moment_index` is not unrolled and made
-    // these moments 65% slower.
+    // of degree up to 3, then degrees 4 and 5, then degree 6. Each sum
+    // still adds its points in order. The terms are written out: a loop
+    // over `moment_index` is not unrolled and made these moments 65%
+    // slower.
     for (((x, y), z), ws) in xs
         .chunks_exact(LANES)
         .zip(ys.chunks_exact(LANES))
@@ -604,13 +653,12 @@ fn cubic_moments_lanes(
         add(&mut acc[19], mul(wx[1], yp[4]));
         add(&mut acc[20], mul(wx[0], yp[5]));
     }
-    for (((x, y), z), ws) in xs
+    for ((x, y), ws) in xs
         .chunks_exact(LANES)
         .zip(ys.chunks_exact(LANES))
-        .zip(zs.chunks_exact(LANES))
         .zip(ws.chunks_exact(LANES))
     {
-        let (x, y, z, w) = (lanes(x), lanes(y), lanes(z), lanes(ws));
+        let (x, y, w) = (lanes(x), lanes(y), lanes(ws));
         let mut wx = [[0.0; LANES]; 7];
         let mut yp = [[0.0; LANES]; 7];
         wx[0] = w;
@@ -626,19 +674,8 @@ fn cubic_moments_lanes(
         add(&mut acc[25], mul(wx[2], yp[4]));
         add(&mut acc[26], mul(wx[1], yp[5]));
         add(&mut acc[27], mul(wx[0], yp[6]));
-        add(&mut acc_z[0], mul(mul(wx[0], yp[0]), z));
-        add(&mut acc_z[1], mul(mul(wx[1], yp[0]), z));
-        add(&mut acc_z[2], mul(mul(wx[0], yp[1]), z));
-        add(&mut acc_z[3], mul(mul(wx[2], yp[0]), z));
-        add(&mut acc_z[4], mul(mul(wx[1], yp[1]), z));
-        add(&mut acc_z[5], mul(mul(wx[0], yp[2]), z));
-        add(&mut acc_z[6], mul(mul(wx[3], yp[0]), z));
-        add(&mut acc_z[7], mul(mul(wx[2], yp[1]), z));
-        add(&mut acc_z[8], mul(mul(wx[1], yp[2]), z));
-        add(&mut acc_z[9], mul(mul(wx[0], yp[3]), z));
     }
-    let total = |a: &Lanes| (a[0] + a[1]) + (a[2] + a[3]);
-    (acc.map(|a| total(&a)), acc_z.map(|a| total(&a)))
+    acc.map(|a| (a[0] + a[1]) + (a[2] + a[3]))
 }
 
 /// The cubic model's fit (coordinates scaled by `1 / s`), or `None`
@@ -666,41 +703,50 @@ fn fit_cubic(local: &[DVec3], s: f64, weights: Option<&mut [f64]>) -> Option<Qua
         (xs[i], ys[i], zs[i]) = (l.x * inv_s, l.y * inv_s, l.z * inv_s);
         ws[i] = 1.0;
     }
-    let (mo, rz) = cubic_moments(xs, ys, zs, ws);
+    let mo = cubic_moments(xs, ys, zs, ws);
     let mut ata = [0.0; 55];
-    let mut atz = [0.0; 10];
     let mut k = 0;
     for (r, &(ri, rj)) in CUBIC_BASIS.iter().enumerate() {
         for &(ci, cj) in &CUBIC_BASIS[r..] {
             ata[k] = mo[moment_index(ri + ci, rj + cj)];
             k += 1;
         }
-        atz[r] = rz[moment_index(ri, rj)];
     }
     let ldl = ldl_factor::<10>(&ata)?;
-    let beta = ldl_solve(&ldl, &atz)?;
-    if beta[5].abs() > 1.0 {
+    let Some(a) = weights else {
+        let rz = cubic_height_moments(xs, ys, zs, ws);
+        let atz = CUBIC_BASIS.map(|(i, j)| rz[moment_index(i, j)]);
+        let beta = ldl_solve(&ldl, &atz)?;
+        if beta[5].abs() > 1.0 {
+            return None;
+        }
+        return Some(QuadricFit::from_scaled(&beta, s, FitKind::Cubic));
+    };
+    // With the linear weights only the height is wanted, and it is their
+    // sum over the heights: no right-hand side, one solve instead of two.
+    // The weights as `linear_weights` makes them, with the kernel weights
+    // the moments left.
+    let z = solve_for_constant(&ldl)?;
+    let mut g = 0.0;
+    for ((((a, &x), &y), &h), &w) in a.iter_mut().zip(&*xs).zip(&*ys).zip(&*zs).zip(&*ws) {
+        let (xx, yy) = (x * x, y * y);
+        let phi = z[0] * xx
+            + z[1] * x * y
+            + z[2] * yy
+            + z[3] * x
+            + z[4] * y
+            + z[5]
+            + z[6] * xx * x
+            + z[7] * xx * y
+            + z[8] * x * yy
+            + z[9] * yy * y;
+        *a = w * phi;
+        g += *a * h;
+    }
+    if g.is_nan() || g.abs() > 1.0 {
         return None;
     }
-    if let Some(a) = weights {
-        // As `linear_weights`, with the kernel weights the moments left.
-        let z = solve_for_constant(&ldl);
-        for (((a, &x), &y), &w) in a.iter_mut().zip(&*xs).zip(&*ys).zip(&*ws) {
-            let (xx, yy) = (x * x, y * y);
-            let phi = z[0] * xx
-                + z[1] * x * y
-                + z[2] * yy
-                + z[3] * x
-                + z[4] * y
-                + z[5]
-                + z[6] * xx * x
-                + z[7] * xx * y
-                + z[8] * x * yy
-                + z[9] * yy * y;
-            *a = w * phi;
-        }
-    }
-    Some(QuadricFit::from_scaled(&beta, s, FitKind::Cubic))
+    Some(QuadricFit::height_only(g * s, FitKind::Cubic))
 }
 
 /// Solves the symmetric system whose upper triangle is packed row-wise in
@@ -949,16 +995,23 @@ mod tests {
             (FitModel::Plane, FitKind::Plane),
         ] {
             let fit = fit_neighbours_weighted(&frame, &pts, &ids, model, Some(facing), &mut w);
-            assert_eq!(fit, fit_neighbours(&frame, &pts, &ids, model, Some(facing)));
+            let plain = fit_neighbours(&frame, &pts, &ids, model, Some(facing));
             assert_eq!(fit.kind, kind);
+            assert_eq!(plain.kind, kind);
+            assert!(
+                (fit.height - plain.height()).abs() <= 1e-12,
+                "{kind:?}: {} vs {}",
+                fit.height,
+                plain.height()
+            );
             let a: Vec<f64> = w.iter().map(|&x| f64::from(x)).collect();
             assert_eq!((a[40], a[41]), (0.0, 0.0), "{kind:?}: left-out points");
             let height: f64 = a.iter().zip(&pts).map(|(a, p)| a * p.z).sum();
             // Single-precision weights.
             assert!(
-                (height - fit.height()).abs() < 1e-5,
+                (height - fit.height).abs() < 1e-5,
                 "{kind:?}: {height} vs {}",
-                fit.height()
+                fit.height
             );
             let sum: f64 = a.iter().sum();
             let (mx, my): (f64, f64) = (
@@ -993,12 +1046,15 @@ mod tests {
                 // SAFETY: AVX2 is present (checked just above).
                 let b = unsafe { cubic_moments_avx2(xs, ys, zs, &mut ws_b) };
                 assert_eq!(ws_a, ws_b, "{n} points: kernel weights");
-                let bits = |m: &([f64; 28], [f64; 10])| -> Vec<u64> {
-                    m.0.iter().chain(&m.1).map(|v| v.to_bits()).collect()
-                };
+                let bits = |m: &[f64; 28]| -> Vec<u64> { m.iter().map(|v| v.to_bits()).collect() };
                 assert_eq!(bits(&a), bits(&b), "{n} points");
             }
-            assert!(a.0.iter().chain(&a.1).all(|v| v.is_finite()));
+            assert!(a.iter().all(|v| v.is_finite()));
+            assert!(
+                cubic_height_moments(xs, ys, zs, &ws_a)
+                    .iter()
+                    .all(|v| v.is_finite())
+            );
         }
     }
 
