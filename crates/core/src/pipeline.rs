@@ -3,19 +3,20 @@
 
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length, signed_volume};
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
-use crate::quality::{defect_count, improve, measure_stage, mesh_statistics};
+use crate::quality::{
+    defect_count, improve, mean_curvature_variation, measure_stage, mesh_statistics,
+};
+use crate::report::{CurvatureVariation, QualityReport, StageMeasures};
 use crate::report::{
     LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
 };
-use crate::report::{QualityReport, StageMeasures};
 use crate::smoothing::adaptive::{
     AdaptiveNeighbourhoods, GrowthRule, REFIT_TOLERANCE, adaptive_neighbourhoods, agreement_masks,
     is_refit_pass,
 };
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
-use crate::smoothing::initial::smooth_passes;
+use crate::smoothing::initial::{initial_passes, smooth_passes};
 use crate::smoothing::label::{Label, label};
-use crate::smoothing::neighbourhood::Neighbourhoods;
 use crate::smoothing::normals::vertex_normals_f32;
 use crate::smoothing::project::FitStats;
 use crate::smoothing::quadric_fit::FitModel;
@@ -151,6 +152,10 @@ pub fn movable_mask(topo: &Topology, boundary: BoundaryRule) -> Vec<bool> {
 /// Intermediate results of the Wang-Yu stages.
 #[derive(Debug, Clone)]
 pub struct WangYuRun {
+    /// The input's mean curvature variation
+    /// ([`mean_curvature_variation`]), from the 2-ring quadric fits of the
+    /// first initial pass (the estimator of [`WangYuRun::curvature`]).
+    pub input_curvature_variation: f64,
     /// Measures after initial smoothing.
     pub initial: StageMeasures,
     /// Positions after adaptive smoothing (and volume restoration).
@@ -190,22 +195,19 @@ pub fn wang_yu(
     let t = Instant::now();
     let mut positions = mesh.positions().to_vec();
     let passes = params.initial_passes;
-    let two_ring = Neighbourhoods::two_ring(topo, max_points);
-    let initial_fits = smooth_passes(
+    let (initial_fits, input_curvature) = initial_passes(
         mesh,
         topo,
         &mut positions,
-        &two_ring,
         movable,
-        FitModel::Quadric,
+        max_points,
         min_cos,
         passes,
-        |_| true,
-        None,
         cancel,
         |p| progress.update(Stage::Initial, p as f64 / passes.max(1) as f64),
     )?;
-    drop(two_ring);
+    let input_curvature_variation = mean_curvature_variation(topo, &input_curvature);
+    drop(input_curvature);
     timings_ms.push((Stage::Initial, ms(t)));
     let t = Instant::now();
     let initial = measure_stage(
@@ -312,6 +314,7 @@ pub fn wang_yu(
     let curvature = stage_curvature(mesh, topo, &positions, params);
     timings_ms.push((Stage::Report, ms(t)));
     Ok(WangYuRun {
+        input_curvature_variation,
         initial,
         adaptive: positions,
         curvature,
@@ -374,14 +377,17 @@ pub fn run(
     progress.update(Stage::Analyse, 0.0);
     let topo = Topology::build(mesh);
     let movable = movable_mask(&topo, params.boundary);
-    let input_curvature = stage_curvature(mesh, &topo, input, params);
+    // Wang-Yu's first initial pass fits the input's 2-rings anyway: the
+    // input's curvature variation comes from those fits.
+    let input_curvature =
+        (params.method != Method::WangYu).then(|| stage_curvature(mesh, &topo, input, params));
     let mut report = QualityReport::new(mesh_statistics(mesh, &topo), Reproducibility::new(params));
     report.stages.input = Some(measure_stage(
         mesh,
         &topo,
         input,
         input,
-        Some(&input_curvature),
+        input_curvature.as_deref(),
         fraction,
     ));
     drop(input_curvature);
@@ -398,6 +404,12 @@ pub fn run(
                 wang_yu(mesh, &topo, &movable, params, progress, cancel)?
             };
             let t = Instant::now();
+            if let Some(stage) = report.stages.input.as_mut() {
+                stage.curvature_variation = Some(CurvatureVariation::new(
+                    r.input_curvature_variation,
+                    stage.mean_edge_length,
+                ));
+            }
             report.stages.initial = Some(r.initial);
             report.stages.adaptive = Some(measure_stage(
                 mesh,

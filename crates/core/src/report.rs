@@ -136,6 +136,18 @@ pub struct CurvatureVariation {
     pub mean_scaled: f64,
 }
 
+impl CurvatureVariation {
+    /// The variation `mean` of a stage whose mean edge length is
+    /// `mean_edge_length`
+    /// ([`mean_curvature_variation`](crate::quality::mean_curvature_variation)).
+    pub fn new(mean: f64, mean_edge_length: f64) -> CurvatureVariation {
+        CurvatureVariation {
+            mean,
+            mean_scaled: mean * mean_edge_length,
+        }
+    }
+}
+
 /// Angle statistics over a set of corners. Angles are unsigned, in
 /// `[0, 180]` degrees; a corner with a zero-length side counts as 0°.
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]

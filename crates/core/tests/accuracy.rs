@@ -127,6 +127,19 @@ fn reported_curvature_is_the_spheres_and_its_variation_drops() {
         ..Params::default()
     };
     let taubin = run(&m, &params, &NoProgress, &AtomicBool::new(false)).expect("runs");
+    // The input's curvature is the same whichever method smooths it, and
+    // the same as a report of the mesh alone (Wang-Yu takes it from its
+    // first initial pass, the others fit it for the report).
+    let report = meshsmooth_core::pipeline::measure(&m, &Params::default());
+    let input_stage = |r: &meshsmooth_core::report::QualityReport| {
+        r.stages
+            .input
+            .as_ref()
+            .and_then(|s| s.curvature_variation.clone())
+    };
+    assert!(input_stage(&report).is_some());
+    assert_eq!(input_stage(&out.report), input_stage(&report));
+    assert_eq!(input_stage(&taubin.report), input_stage(&report));
     let (wang_yu, baseline) = (variation(&out, "final"), variation(&taubin, "final"));
     assert!(
         baseline < input && wang_yu < 0.1 * baseline,

@@ -179,7 +179,7 @@ pub fn measure_stage(
     };
     let threshold = short_edge_fraction * mean_edge_length;
     let (short_edges, boundary_edges) = edge_pass(topo, positions, threshold);
-    let (displacement, variation) = vertex_pass(topo, positions, input, curvature);
+    let displacement = vertex_pass(positions, input);
     let volume = (boundary_edges == 0 && mesh.num_faces() > 0).then(|| VolumeMeasure {
         volume: faces.volume,
         relative_change: (faces.input_volume != 0.0)
@@ -187,10 +187,8 @@ pub fn measure_stage(
     });
     StageMeasures {
         mean_edge_length,
-        curvature_variation: variation.map(|mean| CurvatureVariation {
-            mean,
-            mean_scaled: mean * mean_edge_length,
-        }),
+        curvature_variation: curvature
+            .map(|c| CurvatureVariation::new(mean_curvature_variation(topo, c), mean_edge_length)),
         triangle_angles: faces.triangles.finish(),
         polygon_angles: faces.corners.finish(),
         short_edges,
@@ -450,56 +448,66 @@ fn edge_pass(topo: &Topology, positions: &[DVec3], threshold: f64) -> (u64, u64)
         .reduce(|| (0, 0), |x, y| (x.0 + y.0, x.1 + y.1))
 }
 
-/// Displacement statistics and the mean curvature variation.
-fn vertex_pass(
-    topo: &Topology,
-    positions: &[DVec3],
-    input: &[DVec3],
-    curvature: Option<&[(f64, f64)]>,
-) -> (Displacement, Option<f64>) {
+/// Displacement statistics.
+fn vertex_pass(positions: &[DVec3], input: &[DVec3]) -> Displacement {
     let n = positions.len();
-    // (sum d, sum d^2, max d, sum variation, vertices with neighbours)
-    let chunks: Vec<(f64, f64, f64, f64, u64)> = (0..n.div_ceil(CHUNK))
+    // (sum d, sum d^2, max d)
+    let chunks: Vec<(f64, f64, f64)> = (0..n.div_ceil(CHUNK))
         .into_par_iter()
         .map(|c| {
-            let mut s = (0.0, 0.0, 0.0f64, 0.0, 0u64);
+            let mut s = (0.0, 0.0, 0.0f64);
             for v in c * CHUNK..((c + 1) * CHUNK).min(n) {
                 let d = positions[v].distance(input[v]);
                 s.0 += d;
                 s.1 += d * d;
                 s.2 = s.2.max(d);
-                if let Some(hk) = curvature {
-                    let nb = topo.neighbors(v);
-                    if !nb.is_empty() {
-                        let h = hk[v].0;
-                        let var = nb
-                            .iter()
-                            .map(|&j| (h - hk[j as usize].0).abs())
-                            .fold(0.0, f64::max);
-                        s.3 += var;
-                        s.4 += 1;
-                    }
+            }
+            s
+        })
+        .collect();
+    let mut t = (0.0, 0.0, 0.0f64);
+    for c in &chunks {
+        t.0 += c.0;
+        t.1 += c.1;
+        t.2 = t.2.max(c.2);
+    }
+    let nv = n.max(1) as f64;
+    Displacement {
+        mean: t.0 / nv,
+        rms: (t.1 / nv).sqrt(),
+        max: t.2,
+    }
+}
+
+/// The mean curvature variation of a stage whose per-vertex `(H, K)` is
+/// `curvature`: over the vertices with neighbours, the mean of the largest
+/// `|H_i - H_j|` to a neighbour `j` (what [`measure_stage`] reports, times
+/// the stage's mean edge length as well, when given the curvature).
+pub fn mean_curvature_variation(topo: &Topology, curvature: &[(f64, f64)]) -> f64 {
+    let n = curvature.len();
+    // (sum variation, vertices with neighbours), summed in fixed chunks.
+    let chunks: Vec<(f64, u64)> = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            let mut s = (0.0, 0u64);
+            for v in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                let nb = topo.neighbors(v);
+                if !nb.is_empty() {
+                    let h = curvature[v].0;
+                    s.0 += nb
+                        .iter()
+                        .map(|&j| (h - curvature[j as usize].0).abs())
+                        .fold(0.0, f64::max);
+                    s.1 += 1;
                 }
             }
             s
         })
         .collect();
-    let mut t = (0.0, 0.0, 0.0f64, 0.0, 0u64);
-    for c in &chunks {
-        t.0 += c.0;
-        t.1 += c.1;
-        t.2 = t.2.max(c.2);
-        t.3 += c.3;
-        t.4 += c.4;
-    }
-    let nv = n.max(1) as f64;
-    let displacement = Displacement {
-        mean: t.0 / nv,
-        rms: (t.1 / nv).sqrt(),
-        max: t.2,
-    };
-    let variation = curvature.map(|_| if t.4 > 0 { t.3 / t.4 as f64 } else { 0.0 });
-    (displacement, variation)
+    let (sum, count) = chunks
+        .iter()
+        .fold((0.0, 0u64), |t, c| (t.0 + c.0, t.1 + c.1));
+    if count > 0 { sum / count as f64 } else { 0.0 }
 }
 
 /// Size and topology figures of `mesh` (whose adjacency is `topo`).

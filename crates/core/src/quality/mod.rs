@@ -24,7 +24,7 @@ pub mod short_edge;
 pub mod twisted;
 
 pub use inverted::{InvertedStats, fix_inverted_faces};
-pub use measures::{measure_stage, mesh_statistics};
+pub use measures::{mean_curvature_variation, measure_stage, mesh_statistics};
 pub use sharp_angle::{SharpAngleStats, fix_sharp_angles};
 pub use short_edge::{ShortEdgeStats, fix_short_edges};
 pub use twisted::{TwistedStats, fix_twisted_quads};

@@ -3,9 +3,8 @@
 //! [`QuadricFit::curvature`](super::quadric_fit::QuadricFit::curvature);
 //! this file estimates them for a whole mesh without moving it.
 
-use super::adaptive::BEAM_WIDTH;
 use super::frame::Frame;
-use super::neighbourhood::{Neighbourhoods, push_thinned};
+use super::neighbourhood::{Neighbourhoods, select_rings};
 use super::quadric_fit::{Facing, FitModel, fit_neighbours};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::{DVec3, Vec3};
@@ -14,11 +13,9 @@ use glam::{DVec3, Vec3};
 pub type Curvatures = Vec<(f64, f64)>;
 
 /// `(H, K)` at every vertex of `positions` from a quadric fit to its
-/// `rings`-ring, thinned to at most `max_points` (inner rings kept whole
-/// while they hold half of them, [`push_thinned`]); rings beyond the second
-/// are walked as in growth (a sample of [`BEAM_WIDTH`] vertices expanded per
-/// ring). 0 where the vertex has no usable normal; boundary vertices fit a
-/// plane ([`curvature_at`]). `normals` are the unit vertex normals of
+/// `rings`-ring as [`select_rings`] chooses it (at most `max_points`
+/// points). 0 where the vertex has no usable normal; boundary vertices fit
+/// a plane ([`curvature_at`]). `normals` are the unit vertex normals of
 /// `positions` ([`vertex_normals_f32`](super::normals::vertex_normals_f32));
 /// neighbours facing away by a cosine below `min_cos` are left out. The
 /// rings are walked and fitted vertex by vertex, never stored.
@@ -32,17 +29,7 @@ pub fn vertex_curvatures(
 ) -> Curvatures {
     Neighbourhoods::map(
         topo,
-        |v, w, out| {
-            w.start(topo, v);
-            for r in 0..rings {
-                let beam = if r < 2 { usize::MAX } else { BEAM_WIDTH };
-                if w.grow_beam(topo, beam).is_empty() {
-                    w.discard_last();
-                    break;
-                }
-            }
-            push_thinned(w, max_points, max_points / 2, out);
-        },
+        |v, w, out| select_rings(w, topo, v, rings, max_points, out),
         |v, hood| curvature_at(topo, positions, normals, v, hood, min_cos),
     )
 }

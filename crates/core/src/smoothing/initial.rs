@@ -1,7 +1,9 @@
 //! Initial smoothing (paper section 2.2): a few Jacobi passes of quadric
 //! fits over the fixed 2-ring of every vertex.
 
-use super::neighbourhood::Neighbourhoods;
+use super::curvature::{Curvatures, vertex_curvatures};
+use super::neighbourhood::{HoodSource, Neighbourhoods};
+use super::normals::vertex_normals_f32;
 use super::project::{FitStats, Refit, UNFITTED_DRIFT, fit_pass, step_limits, weighted_pass};
 use super::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
@@ -63,7 +65,7 @@ pub fn smooth_passes(
                     mesh,
                     topo,
                     positions,
-                    hoods,
+                    HoodSource::Stored(hoods),
                     movable,
                     model,
                     min_cos,
@@ -74,21 +76,91 @@ pub fn smooth_passes(
                         limits,
                         stale: stale.as_deref(),
                     }),
+                    None,
                 )
             }
             None => fit_pass(
-                mesh, topo, positions, hoods, movable, model, min_cos, &mut moves, None,
+                mesh,
+                topo,
+                positions,
+                HoodSource::Stored(hoods),
+                movable,
+                model,
+                min_cos,
+                &mut moves,
+                None,
+                None,
             ),
         };
         stats.accumulate(s);
-        positions
-            .par_iter_mut()
-            .zip(&moves)
-            .with_min_len(4096)
-            .for_each(|(p, m)| *p += m.as_dvec3());
+        apply(positions, &moves);
         on_pass(pass + 1);
     }
     Ok(stats)
+}
+
+/// Initial smoothing: `passes` Jacobi passes of quadric fits over every
+/// vertex's 2-ring (at most `max_points` points,
+/// [`select_rings`](super::neighbourhood::select_rings)), walked
+/// as each vertex is fitted rather than stored. Updates `positions` in
+/// place and returns the fit statistics, and the curvature of the starting
+/// positions that pass 0's fits give: [`vertex_curvatures`] with 2 rings,
+/// the curvature a report gives for the input, at no extra cost. `min_cos`
+/// is [`fit_pass`]'s.
+#[allow(clippy::too_many_arguments)]
+pub fn initial_passes(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &mut [DVec3],
+    movable: &[bool],
+    max_points: usize,
+    min_cos: f64,
+    passes: u32,
+    cancel: &AtomicBool,
+    mut on_pass: impl FnMut(u32),
+) -> Result<(FitStats, Curvatures), Cancelled> {
+    let hoods = HoodSource::Walked {
+        rings: 2,
+        max_points,
+    };
+    let mut moves = vec![Vec3::ZERO; positions.len()];
+    let mut stats = FitStats::default();
+    let mut curvature = Vec::new();
+    if passes == 0 {
+        let normals = vertex_normals_f32(mesh, topo, positions);
+        curvature = vertex_curvatures(topo, positions, &normals, 2, max_points, min_cos);
+    }
+    for pass in 0..passes {
+        check(cancel)?;
+        let first = (pass == 0).then(|| {
+            curvature = vec![(0.0, 0.0); positions.len()];
+            &mut curvature[..]
+        });
+        stats.accumulate(fit_pass(
+            mesh,
+            topo,
+            positions,
+            hoods,
+            movable,
+            FitModel::Quadric,
+            min_cos,
+            &mut moves,
+            None,
+            first,
+        ));
+        apply(positions, &moves);
+        on_pass(pass + 1);
+    }
+    Ok((stats, curvature))
+}
+
+/// Adds each vertex's move to its position.
+fn apply(positions: &mut [DVec3], moves: &[Vec3]) {
+    positions
+        .par_iter_mut()
+        .zip(moves)
+        .with_min_len(4096)
+        .for_each(|(p, m)| *p += m.as_dvec3());
 }
 
 /// The vertices a selective refit fits anew: those where the vertex or one
@@ -206,6 +278,50 @@ mod tests {
             .map(|(a, b)| a.distance(*b))
             .fold(0.0, f64::max);
         assert!(max_diff < 0.002, "moved {max_diff} apart");
+    }
+
+    #[test]
+    fn the_first_initial_pass_gives_the_curvature_of_the_start() {
+        // A bumpy open grid: its boundary vertices do not move (fitted for
+        // the curvature only), one interior vertex is held too.
+        let mut mesh = crate::mesh::test_grid(12);
+        let bumped: Vec<DVec3> = mesh
+            .positions()
+            .iter()
+            .map(|p| p + DVec3::Z * (0.3 * (p.x * 1.7).sin() * (p.y * 0.9).cos()))
+            .collect();
+        mesh = crate::mesh::Mesh::from_polygons(bumped, &mesh.faces().collect::<Vec<_>>())
+            .expect("valid mesh");
+        let topo = Topology::build(&mesh);
+        let mut movable: Vec<bool> = (0..mesh.num_vertices())
+            .map(|v| topo.kind(v) == crate::mesh::VertexKind::Interior)
+            .collect();
+        movable[40] = false;
+        let normals = vertex_normals_f32(&mesh, &topo, mesh.positions());
+        let expected = vertex_curvatures(&topo, mesh.positions(), &normals, 2, 56, 0.5);
+        let never = AtomicBool::new(false);
+        for passes in [0, 2] {
+            let mut p = mesh.positions().to_vec();
+            let (stats, curvature) = initial_passes(
+                &mesh,
+                &topo,
+                &mut p,
+                &movable,
+                56,
+                0.5,
+                passes,
+                &never,
+                |_| {},
+            )
+            .expect("not cancelled");
+            assert_eq!(curvature, expected, "{passes} passes");
+            assert!(expected.iter().any(|c| c.0 != 0.0));
+            assert_eq!(
+                stats.quadric,
+                u64::from(passes) * movable.iter().filter(|&&m| m).count() as u64
+            );
+            assert_eq!(p == mesh.positions(), passes == 0);
+        }
     }
 
     #[test]

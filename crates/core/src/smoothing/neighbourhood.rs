@@ -8,6 +8,7 @@
 //! grids, marching cubes and most writers number nearby vertices closely,
 //! so nearly every gap fits; a larger one takes an escape and 32 bits.
 
+use super::adaptive::BEAM_WIDTH;
 use crate::mesh::{RingWalker, Topology};
 use half::f16;
 use half::slice::HalfFloatSliceExt;
@@ -98,7 +99,12 @@ pub struct ChunkWeights<'a> {
     hoods: &'a Neighbourhoods,
 }
 
-impl ChunkWeights<'_> {
+impl<'a> ChunkWeights<'a> {
+    /// The lists these weights are laid out like.
+    pub fn hoods(&self) -> &'a Neighbourhoods {
+        self.hoods
+    }
+
     /// Vertex `v`'s weights, which must lie in this chunk, as
     /// [`NeighbourWeights::get_f32_into`] gives them.
     pub fn get_f32_into(&self, v: usize, out: &mut Vec<f32>) {
@@ -337,6 +343,60 @@ impl Neighbourhoods {
             push_thinned(w, max_points, max_points / 2, out);
         })
     }
+}
+
+/// Where a fitting pass takes each vertex's neighbours from.
+#[derive(Debug, Clone, Copy)]
+pub enum HoodSource<'a> {
+    /// Stored lists, in ascending order (passes that keep fit weights need
+    /// these: the weights are laid out like them).
+    Stored(&'a Neighbourhoods),
+    /// Every vertex's `rings`-ring, walked when the vertex is fitted and
+    /// chosen by [`select_rings`], in walk order; never stored.
+    Walked {
+        /// Rings walked.
+        rings: u32,
+        /// Most points kept.
+        max_points: usize,
+    },
+}
+
+impl HoodSource<'_> {
+    /// Vertex `v`'s neighbours, written to `out` (cleared first).
+    #[inline]
+    pub fn get_into(&self, topo: &Topology, v: usize, out: &mut Vec<u32>) {
+        match *self {
+            HoodSource::Stored(hoods) => hoods.get_into(v, out),
+            HoodSource::Walked { rings, max_points } => {
+                out.clear();
+                WALKER.with(|w| select_rings(&mut w.borrow_mut(), topo, v, rings, max_points, out));
+            }
+        }
+    }
+}
+
+/// Appends vertex `v`'s `rings`-ring, walked with `w`, to `out`: rings 1
+/// and 2 whole, later rings as growth walks them (a sample of
+/// [`BEAM_WIDTH`] vertices expanded per ring), thinned to at most
+/// `max_points` with inner rings kept whole while they hold half of them
+/// ([`push_thinned`]).
+pub fn select_rings(
+    w: &mut RingWalker,
+    topo: &Topology,
+    v: usize,
+    rings: u32,
+    max_points: usize,
+    out: &mut Vec<u32>,
+) {
+    w.start(topo, v);
+    for r in 0..rings {
+        let beam = if r < 2 { usize::MAX } else { BEAM_WIDTH };
+        if w.grow_beam(topo, beam).is_empty() {
+            w.discard_last();
+            break;
+        }
+    }
+    push_thinned(w, max_points, max_points / 2, out);
 }
 
 /// Appends the walker's rings to `out`, at most `max_points` of them: inner

@@ -7,8 +7,9 @@
 //! applied, so the result is deterministic and independent of the thread
 //! count.
 
+use super::curvature::curvature_at;
 use super::frame::Frame;
-use super::neighbourhood::{CHUNK, ChunkWeights, NeighbourWeights, Neighbourhoods};
+use super::neighbourhood::{CHUNK, ChunkWeights, HoodSource, NeighbourWeights, Neighbourhoods};
 use super::normals::{vertex_normal, vertex_normals_f32};
 use super::quadric_fit::{
     Facing, FitHeight, FitKind, FitModel, fit_neighbours, fit_neighbours_weighted,
@@ -86,26 +87,43 @@ pub const UNFITTED_DRIFT: f32 = f32::INFINITY;
 /// With `refit`, keeps each fit's linear weights and the vertices' drift
 /// for [`weighted_pass`], and fits only `refit.stale` vertices (all when
 /// `None`).
+/// With `curvature`, also writes every vertex's `(H, K)` from its fit, as
+/// [`vertex_curvatures`](super::curvature::vertex_curvatures) computes it
+/// when `model` is the quadric and `hoods` are the same neighbourhoods
+/// (immovable vertices are fitted for it without moving).
 /// Returns the fit statistics.
+///
+/// # Panics
+/// When `refit` is given with walked neighbourhoods (kept weights are laid
+/// out like stored lists) or with `curvature` (a fit that keeps weights
+/// solves for its height only).
 #[allow(clippy::too_many_arguments)]
 pub fn fit_pass(
     mesh: &Mesh,
     topo: &Topology,
     positions: &[DVec3],
-    hoods: &Neighbourhoods,
+    hoods: HoodSource,
     movable: &[bool],
     model: FitModel,
     min_cos: f64,
     out: &mut [Vec3],
     refit: Option<Refit>,
+    curvature: Option<&mut [(f64, f64)]>,
 ) -> FitStats {
     let normals = vertex_normals_f32(mesh, topo, positions);
     let chunks = out.len().div_ceil(CHUNK);
+    let curvature: Vec<Option<&mut [(f64, f64)]>> = match curvature {
+        Some(c) => c.chunks_mut(CHUNK).map(Some).collect(),
+        None => (0..chunks).map(|_| None).collect(),
+    };
     type Kept<'b> = (ChunkWeights<'b>, &'b mut [f32]);
     let (kept, limits, stale): (Vec<Option<Kept>>, &[f32], Option<&[bool]>) = match refit {
         Some(r) => (
             r.weights
-                .chunks_mut(hoods)
+                .chunks_mut(match hoods {
+                    HoodSource::Stored(h) if curvature.iter().all(Option::is_none) => h,
+                    _ => panic!("fit weights are kept with stored lists and no curvature"),
+                })
                 .zip(r.drift.chunks_mut(CHUNK))
                 .map(Some)
                 .collect(),
@@ -116,8 +134,9 @@ pub fn fit_pass(
     };
     out.par_chunks_mut(CHUNK)
         .zip(kept)
+        .zip(curvature)
         .enumerate()
-        .map(|(c, (out, mut kept))| {
+        .map(|(c, ((out, mut kept), mut curvature))| {
             let mut stats = FitStats::default();
             // Scratch for one vertex: its decoded list and fit weights.
             let (mut list, mut slot_weights) = (Vec::new(), Vec::new());
@@ -134,7 +153,7 @@ pub fn fit_pass(
                             mesh,
                             topo,
                             positions,
-                            hoods,
+                            w.hoods(),
                             &slot_weights,
                             limits[v],
                             v,
@@ -147,6 +166,10 @@ pub fn fit_pass(
                 }
                 let n = normals[v].as_dvec3().normalize_or_zero();
                 if !movable[v] || n == DVec3::ZERO {
+                    if let Some(curvature) = curvature.as_mut() {
+                        hoods.get_into(topo, v, &mut list);
+                        curvature[i] = curvature_at(topo, positions, &normals, v, &list, min_cos);
+                    }
                     if let Some((w, drift)) = kept.as_mut() {
                         w.set(v, &[]);
                         drift[i] = if movable[v] { UNFITTED_DRIFT } else { 0.0 };
@@ -164,7 +187,7 @@ pub fn fit_pass(
                     min_cos,
                 };
                 let frame = Frame::new(p, n);
-                hoods.get_into(v, &mut list);
+                hoods.get_into(topo, v, &mut list);
                 let fit = match kept.as_mut() {
                     Some((w, _)) => {
                         slot_weights.resize(list.len(), 0.0);
@@ -181,6 +204,9 @@ pub fn fit_pass(
                     }
                     None => {
                         let fit = fit_neighbours(&frame, positions, &list, model, Some(facing));
+                        if let Some(curvature) = curvature.as_mut() {
+                            curvature[i] = fit.curvature();
+                        }
                         FitHeight {
                             kind: fit.kind,
                             height: fit.height(),
