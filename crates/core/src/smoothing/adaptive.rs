@@ -215,51 +215,45 @@ fn grow(
     let normal = normals[v].as_dvec3().normalize_or_zero();
     let own = 1u8 << labels[v] as u8;
     let mut s_k = m.std();
-    let mut scratch = RingScratch::default();
-    while w.rings() < rule.k_max as usize {
-        let candidates = w.grow_beam(topo, BEAM_WIDTH);
-        if candidates.is_empty() {
-            w.discard_last();
-            break;
+    SCRATCH.with_borrow_mut(|scratch| {
+        while w.rings() < rule.k_max as usize {
+            let candidates = w.grow_beam(topo, BEAM_WIDTH);
+            if candidates.is_empty() {
+                w.discard_last();
+                break;
+            }
+            let ring = ring_stats(
+                candidates, positions, centre, normal, agreement, own, h_scaled, scratch,
+            );
+            if ring.disagreeing as f64 > rule.label_disagreement * candidates.len() as f64 {
+                w.discard_last();
+                break;
+            }
+            // A candidate at height `z` over the tangent plane and radius `rho`
+            // implies a normal curvature `2 z / rho^2`; the largest over the ring
+            // estimates `kappa_max`, and a fit out to the ring's mean radius
+            // then sits `rho^4 kappa^3 / 48` above the surface.
+            let rho2 = ring.radius2 / candidates.len() as f64;
+            let kappa = 2.0 * ring.bend;
+            let bias = rho2 * rho2 * kappa.powi(3) / 48.0;
+            if bias > rule.bias_bound * rule.edge_length {
+                w.discard_last();
+                break;
+            }
+            let grown = Moments {
+                n: m.n + candidates.len() as f64,
+                sum: m.sum + ring.h_sum,
+                sum2: m.sum2 + ring.h_sum2,
+            };
+            let s_next = grown.std();
+            if !(s_next <= s_k + rule.std_tolerance && s_next <= rule.std_bound) {
+                w.discard_last();
+                break;
+            }
+            m = grown;
+            s_k = s_next;
         }
-        let ring = ring_stats(
-            candidates,
-            positions,
-            centre,
-            normal,
-            agreement,
-            own,
-            h_scaled,
-            &mut scratch,
-        );
-        if ring.disagreeing as f64 > rule.label_disagreement * candidates.len() as f64 {
-            w.discard_last();
-            break;
-        }
-        // A candidate at height `z` over the tangent plane and radius `rho`
-        // implies a normal curvature `2 z / rho^2`; the largest over the ring
-        // estimates `kappa_max`, and a fit out to the ring's mean radius
-        // then sits `rho^4 kappa^3 / 48` above the surface.
-        let rho2 = ring.radius2 / candidates.len() as f64;
-        let kappa = 2.0 * ring.bend;
-        let bias = rho2 * rho2 * kappa.powi(3) / 48.0;
-        if bias > rule.bias_bound * rule.edge_length {
-            w.discard_last();
-            break;
-        }
-        let grown = Moments {
-            n: m.n + candidates.len() as f64,
-            sum: m.sum + ring.h_sum,
-            sum2: m.sum2 + ring.h_sum2,
-        };
-        let s_next = grown.std();
-        if !(s_next <= s_k + rule.std_tolerance && s_next <= rule.std_bound) {
-            w.discard_last();
-            break;
-        }
-        m = grown;
-        s_k = s_next;
-    }
+    });
     // Rings 1 and 2 are always kept, even when a component is smaller.
     w.rings()
 }
@@ -286,6 +280,11 @@ const LANES: usize = 4;
 
 /// Candidates gathered per block of [`ring_stats`].
 const BLOCK: usize = 64;
+
+thread_local! {
+    /// One [`RingScratch`] per thread, reused by every vertex's growth.
+    static SCRATCH: std::cell::RefCell<RingScratch> = std::cell::RefCell::new(RingScratch::default());
+}
 
 /// One block of candidates in structure-of-arrays form, relative to the
 /// growing vertex, zero-padded to whole lanes.

@@ -83,11 +83,12 @@ impl NeighbourWeights {
     }
 }
 
-/// `w` converted to single precision into `out` (cleared first): one vector
-/// conversion instead of one per weight.
+/// `w` converted to single precision into `out` (replacing its contents):
+/// one vector conversion instead of one per weight. (`out` is resized, not
+/// cleared first: the conversion overwrites every entry, and a cleared
+/// buffer would be zeroed anew for every vertex.)
 #[inline]
 fn widen_into(w: &[f16], out: &mut Vec<f32>) {
-    out.clear();
     out.resize(w.len(), 0.0);
     w.convert_to_f32_slice(out);
 }
