@@ -727,26 +727,75 @@ fn fit_cubic(local: &[DVec3], s: f64, weights: Option<&mut [f64]>) -> Option<Qua
     // The weights as `linear_weights` makes them, with the kernel weights
     // the moments left.
     let z = solve_for_constant(&ldl)?;
-    let mut g = 0.0;
-    for ((((a, &x), &y), &h), &w) in a.iter_mut().zip(&*xs).zip(&*ys).zip(&*zs).zip(&*ws) {
-        let (xx, yy) = (x * x, y * y);
-        let phi = z[0] * xx
-            + z[1] * x * y
-            + z[2] * yy
-            + z[3] * x
-            + z[4] * y
-            + z[5]
-            + z[6] * xx * x
-            + z[7] * xx * y
-            + z[8] * x * yy
-            + z[9] * yy * y;
-        *a = w * phi;
-        g += *a * h;
-    }
+    let g = cubic_linear_weights(xs, ys, zs, ws, &z);
+    a.copy_from_slice(&ws[..a.len()]);
     if g.is_nan() || g.abs() > 1.0 {
         return None;
     }
     Some(QuadricFit::height_only(g * s, FitKind::Cubic))
+}
+
+/// Replaces the kernel weights `ws` (padded like [`cubic_moments`]'s
+/// points, 0 for padding) by the cubic fit's linear weights
+/// `w_k phi_k . M^-1 e` (as `linear_weights` makes them, `z = M^-1 e`), and
+/// returns the height they give, their sum over the heights `zs`, added in
+/// four fixed lanes.
+fn cubic_linear_weights(xs: &[f64], ys: &[f64], zs: &[f64], ws: &mut [f64], z: &[f64; 10]) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        return unsafe { cubic_linear_weights_avx2(xs, ys, zs, ws, z) };
+    }
+    cubic_linear_weights_lanes(xs, ys, zs, ws, z)
+}
+
+/// [`cubic_linear_weights_lanes`] compiled for AVX2 (same operations, same
+/// order: identical results).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn cubic_linear_weights_avx2(
+    xs: &[f64],
+    ys: &[f64],
+    zs: &[f64],
+    ws: &mut [f64],
+    z: &[f64; 10],
+) -> f64 {
+    cubic_linear_weights_lanes(xs, ys, zs, ws, z)
+}
+
+#[inline(always)]
+fn cubic_linear_weights_lanes(
+    xs: &[f64],
+    ys: &[f64],
+    zs: &[f64],
+    ws: &mut [f64],
+    z: &[f64; 10],
+) -> f64 {
+    let mut g = [0.0f64; LANES];
+    for (((x, y), h), ws) in xs
+        .chunks_exact(LANES)
+        .zip(ys.chunks_exact(LANES))
+        .zip(zs.chunks_exact(LANES))
+        .zip(ws.chunks_exact_mut(LANES))
+    {
+        for i in 0..LANES {
+            let (x, y) = (x[i], y[i]);
+            let (xx, yy) = (x * x, y * y);
+            let phi = z[0] * xx
+                + z[1] * x * y
+                + z[2] * yy
+                + z[3] * x
+                + z[4] * y
+                + z[5]
+                + z[6] * xx * x
+                + z[7] * xx * y
+                + z[8] * x * yy
+                + z[9] * yy * y;
+            ws[i] *= phi;
+            g[i] += ws[i] * h[i];
+        }
+    }
+    (g[0] + g[1]) + (g[2] + g[3])
 }
 
 /// Solves the symmetric system whose upper triangle is packed row-wise in
