@@ -5,6 +5,7 @@
 //! smaller end point, no global sort); connectivity never changes afterwards.
 
 use super::Mesh;
+use rayon::prelude::*;
 use serde::Serialize;
 
 /// How a vertex sits in the surface.
@@ -163,7 +164,11 @@ impl Topology {
             kinds: Vec::new(),
             degenerate_faces,
         };
-        topo.kinds = (0..n).map(|v| topo.classify(mesh, v)).collect();
+        topo.kinds = (0..n)
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|v| topo.classify(mesh, v))
+            .collect();
         topo
     }
 
