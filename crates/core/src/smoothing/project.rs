@@ -110,6 +110,10 @@ pub fn fit_pass(
     refit: Option<Refit>,
     curvature: Option<&mut [(f64, f64)]>,
 ) -> FitStats {
+    let stored = match hoods {
+        HoodSource::Stored(h) if curvature.is_none() => Some(h),
+        _ => None,
+    };
     let normals = vertex_normals_f32(mesh, topo, positions);
     let chunks = out.len().div_ceil(CHUNK);
     let curvature: Vec<Option<&mut [(f64, f64)]>> = match curvature {
@@ -120,10 +124,9 @@ pub fn fit_pass(
     let (kept, limits, stale): (Vec<Option<Kept>>, &[f32], Option<&[bool]>) = match refit {
         Some(r) => (
             r.weights
-                .chunks_mut(match hoods {
-                    HoodSource::Stored(h) if curvature.iter().all(Option::is_none) => h,
-                    _ => panic!("fit weights are kept with stored lists and no curvature"),
-                })
+                .chunks_mut(
+                    stored.expect("fit weights are kept with stored lists and no curvature"),
+                )
                 .zip(r.drift.chunks_mut(CHUNK))
                 .map(Some)
                 .collect(),
