@@ -132,10 +132,7 @@ fn reported_curvature_is_the_spheres_and_its_variation_drops() {
     // first initial pass, the others fit it for the report).
     let report = meshsmooth_core::pipeline::measure(&m, &Params::default());
     let input_stage = |r: &meshsmooth_core::report::QualityReport| {
-        r.stages
-            .input
-            .as_ref()
-            .and_then(|s| s.curvature_variation.clone())
+        r.stages.input.as_ref().and_then(|s| s.curvature_variation)
     };
     assert!(input_stage(&report).is_some());
     assert_eq!(input_stage(&out.report), input_stage(&report));
