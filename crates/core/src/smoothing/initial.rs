@@ -202,19 +202,15 @@ mod tests {
         let movable = vec![true; mesh.num_vertices()];
         // As in the pipeline: the staircase goes first, in passes that fit.
         let mut start = mesh.positions().to_vec();
-        let two_ring = Neighbourhoods::two_ring(&topo, 56);
         let never = AtomicBool::new(false);
-        smooth_passes(
+        initial_passes(
             &mesh,
             &topo,
             &mut start,
-            &two_ring,
             &movable,
-            FitModel::Quadric,
+            56,
             0.0,
             3,
-            |_| true,
-            None,
             &never,
             |_| {},
         )
