@@ -299,6 +299,28 @@ fn report_prints_the_measures_of_a_mesh() {
         let deg = angles[key].as_f64().unwrap();
         assert!((deg - 90.0).abs() < 1e-9, "{key} {deg}");
     }
+    // The measures are a smoothing report's input stage, curvature included.
+    let (output, report) = (dir.join("out.obj"), dir.join("report.json"));
+    let out = meshsmooth(&[
+        "smooth",
+        path_str(&input),
+        "-o",
+        path_str(&output),
+        "--report",
+        path_str(&report),
+        "-q",
+    ]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let smoothed: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let variation = &json["measures"]["curvature_variation"];
+    assert!(
+        variation["mean_scaled"].as_f64().unwrap() > 0.0,
+        "{variation}"
+    );
+    assert_eq!(
+        variation,
+        &smoothed["stages"]["input"]["curvature_variation"]
+    );
 
     let out = meshsmooth_with_stdin(&["report", "-"], &in_bytes);
     assert_eq!(code(&out), 0, "{}", stderr(&out));
@@ -308,6 +330,7 @@ fn report_prints_the_measures_of_a_mesh() {
         "{table}"
     );
     assert!(table.contains("closed"), "{table}");
+    assert!(table.contains("curvature var."), "{table}");
 }
 
 /// The marching-cubes triangle mesh of a ball of radius 4, and its

@@ -11,9 +11,9 @@ mod summary;
 
 use anyhow::{Context, anyhow};
 use meshsmooth_core::io::{self, Document, Format, ReadLimits, ReadOptions, WriteOptions};
-use meshsmooth_core::quality::{measure_stage, mesh_statistics};
+use meshsmooth_core::pipeline::measure;
 use meshsmooth_core::report::{MeshStatistics, SCHEMA_VERSION, StageMeasures, sha256_hex};
-use meshsmooth_core::{Params, SmoothOutput, Topology};
+use meshsmooth_core::{Params, SmoothOutput};
 use std::io::{IsTerminal, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -286,7 +286,8 @@ struct MeshReport {
     schema_version: &'static str,
     /// Size and topology.
     mesh: MeshStatistics,
-    /// Angles, edges, twisted quads and volume of the mesh as it is.
+    /// Curvature variation, angles, edges, twisted quads and volume of the
+    /// mesh as it is: the smoothing report's `input` stage.
     measures: StageMeasures,
     /// SHA-256 of the input file.
     input_sha256: String,
@@ -307,17 +308,19 @@ fn run_report(args: ReportArgs) -> Result<(), Failure> {
         .map_err(Failure::usage)?;
     let read_options = params.read_options(ReadLimits::default());
     let (bytes, doc) = read_input(&args.input, args.input_format, &read_options)?;
-    let mesh = &doc.mesh;
-    let topo = Topology::build(mesh);
-    let positions = mesh.positions();
-    let short_edge_fraction = params.quality.short_edge_fraction;
+    // The smoothing report's input stage, curvature variation included.
+    let measured = measure(&doc.mesh, &params);
     let report = MeshReport {
         schema_version: SCHEMA_VERSION,
         mesh: MeshStatistics {
             file_vertices: file_vertices(&doc),
-            ..mesh_statistics(mesh, &topo)
+            ..measured.mesh
         },
-        measures: measure_stage(mesh, &topo, positions, positions, None, short_edge_fraction),
+        measures: measured
+            .stages
+            .input
+            .context("the input was not measured")
+            .map_err(Failure::other)?,
         input_sha256: sha256_hex(&bytes),
     };
     let mut out = std::io::stdout().lock();

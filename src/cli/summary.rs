@@ -92,6 +92,14 @@ pub fn measured(w: &mut impl Write, m: &MeshStatistics, s: &StageMeasures) -> io
         m.degenerate_faces
     )?;
     writeln!(w, "mean edge length {}", sig(s.mean_edge_length))?;
+    if let Some(c) = s.curvature_variation {
+        writeln!(
+            w,
+            "curvature var.   {} ({} times the mean edge length)",
+            sig(c.mean),
+            sig(c.mean_scaled)
+        )?;
+    }
     writeln!(
         w,
         "short edges      {} (shorter than {})",
