@@ -103,6 +103,12 @@ fn smooth_writes_the_mesh_and_a_report() {
         out.stdout.is_empty(),
         "nothing on stdout when writing files"
     );
+    // The summary on stderr names the smoothness figure, before and after.
+    let summary = stderr(&out);
+    assert!(
+        summary.contains("  curvature ") && summary.contains("mean variation"),
+        "{summary}"
+    );
 
     let out_bytes = std::fs::read(&output).unwrap();
     let smoothed = read_mesh(&out_bytes);

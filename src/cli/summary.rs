@@ -6,7 +6,8 @@ use meshsmooth_core::report::{AngleStats, MeshStatistics, QualityReport, StageMe
 use std::io::{self, Write};
 use std::time::Duration;
 
-/// The end-of-run summary: stage timings, displacement, angles, volume.
+/// The end-of-run summary: stage timings, displacement, angles, curvature
+/// variation, volume.
 pub fn smoothed(
     w: &mut impl Write,
     mesh: &Mesh,
@@ -49,6 +50,14 @@ pub fn smoothed(
         angles(&output.triangle_angles),
         angles(&input.triangle_angles)
     )?;
+    if let (Some(a), Some(b)) = (input.curvature_variation, output.curvature_variation) {
+        writeln!(
+            w,
+            "  curvature {} (input {}): mean variation times the mean edge length",
+            sig(b.mean_scaled),
+            sig(a.mean_scaled)
+        )?;
+    }
     if let Some(change) = output.volume.and_then(|v| v.relative_change) {
         writeln!(w, "  volume    {:+.3} %", change * 100.0)?;
     }
