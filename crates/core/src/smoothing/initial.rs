@@ -56,11 +56,20 @@ pub fn smooth_passes(
             Some((weights, drift, limits)) if !refits(pass) => weighted_pass(
                 mesh, topo, positions, hoods, weights, limits, drift, movable, &mut moves,
             ),
-            Some((weights, drift, limits)) => {
+            kept => {
                 // Before the first fit every vertex is stale.
-                let stale = refit_tolerance
-                    .filter(|_| pass > 0)
-                    .map(|t| stale_vertices(topo, drift, limits, t));
+                let stale = match (&kept, refit_tolerance) {
+                    (Some((_, drift, limits)), Some(t)) if pass > 0 => {
+                        Some(stale_vertices(topo, drift, limits, t))
+                    }
+                    _ => None,
+                };
+                let refit = kept.map(|(weights, drift, limits)| Refit {
+                    weights,
+                    drift,
+                    limits,
+                    stale: stale.as_deref(),
+                });
                 fit_pass(
                     mesh,
                     topo,
@@ -70,27 +79,10 @@ pub fn smooth_passes(
                     model,
                     min_cos,
                     &mut moves,
-                    Some(Refit {
-                        weights,
-                        drift,
-                        limits,
-                        stale: stale.as_deref(),
-                    }),
+                    refit,
                     None,
                 )
             }
-            None => fit_pass(
-                mesh,
-                topo,
-                positions,
-                HoodSource::Stored(hoods),
-                movable,
-                model,
-                min_cos,
-                &mut moves,
-                None,
-                None,
-            ),
         };
         stats.accumulate(s);
         apply(positions, &moves);

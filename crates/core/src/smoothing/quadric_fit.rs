@@ -546,14 +546,7 @@ fn cubic_height_moments(xs: &[f64], ys: &[f64], zs: &[f64], ws: &[f64]) -> [f64;
         .zip(ws.chunks_exact(LANES))
     {
         let (x, y, z, w) = (lanes(x), lanes(y), lanes(z), lanes(ws));
-        let mut wx = [[0.0; LANES]; 4];
-        let mut yp = [[0.0; LANES]; 4];
-        wx[0] = w;
-        yp[0] = [1.0; LANES];
-        for q in 1..4 {
-            wx[q] = mul(wx[q - 1], x);
-            yp[q] = mul(yp[q - 1], y);
-        }
+        let (wx, yp) = powers::<4>(w, x, y);
         add(&mut acc_z[0], mul(mul(wx[0], yp[0]), z));
         add(&mut acc_z[1], mul(mul(wx[1], yp[0]), z));
         add(&mut acc_z[2], mul(mul(wx[0], yp[1]), z));
@@ -586,6 +579,21 @@ fn add(acc: &mut Lanes, a: Lanes) {
 #[inline(always)]
 fn lanes(a: &[f64]) -> Lanes {
     [a[0], a[1], a[2], a[3]]
+}
+
+/// `w x^q` and `y^q` for `q < N`, lane by lane, each power one product
+/// from the one before (the order every moment sweep uses).
+#[inline(always)]
+fn powers<const N: usize>(w: Lanes, x: Lanes, y: Lanes) -> ([Lanes; N], [Lanes; N]) {
+    let mut wx = [[0.0; LANES]; N];
+    let mut yp = [[0.0; LANES]; N];
+    wx[0] = w;
+    yp[0] = [1.0; LANES];
+    for q in 1..N {
+        wx[q] = mul(wx[q - 1], x);
+        yp[q] = mul(yp[q - 1], y);
+    }
+    (wx, yp)
 }
 
 /// The moments over padded coordinate arrays (see [`cubic_moments`]);
@@ -633,14 +641,7 @@ fn cubic_moments_lanes(xs: &[f64], ys: &[f64], zs: &[f64], ws: &mut [f64]) -> [f
         .zip(ws.chunks_exact(LANES))
     {
         let (x, y, w) = (lanes(x), lanes(y), lanes(ws));
-        let mut wx = [[0.0; LANES]; 6];
-        let mut yp = [[0.0; LANES]; 6];
-        wx[0] = w;
-        yp[0] = [1.0; LANES];
-        for q in 1..6 {
-            wx[q] = mul(wx[q - 1], x);
-            yp[q] = mul(yp[q - 1], y);
-        }
+        let (wx, yp) = powers::<6>(w, x, y);
         add(&mut acc[10], mul(wx[4], yp[0]));
         add(&mut acc[11], mul(wx[3], yp[1]));
         add(&mut acc[12], mul(wx[2], yp[2]));
@@ -659,14 +660,7 @@ fn cubic_moments_lanes(xs: &[f64], ys: &[f64], zs: &[f64], ws: &mut [f64]) -> [f
         .zip(ws.chunks_exact(LANES))
     {
         let (x, y, w) = (lanes(x), lanes(y), lanes(ws));
-        let mut wx = [[0.0; LANES]; 7];
-        let mut yp = [[0.0; LANES]; 7];
-        wx[0] = w;
-        yp[0] = [1.0; LANES];
-        for q in 1..7 {
-            wx[q] = mul(wx[q - 1], x);
-            yp[q] = mul(yp[q - 1], y);
-        }
+        let (wx, yp) = powers::<7>(w, x, y);
         add(&mut acc[21], mul(wx[6], yp[0]));
         add(&mut acc[22], mul(wx[5], yp[1]));
         add(&mut acc[23], mul(wx[4], yp[2]));
