@@ -11,11 +11,11 @@ use crate::report::{
     LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
 };
 use crate::smoothing::adaptive::{
-    AdaptiveNeighbourhoods, GrowthRule, REFIT_TOLERANCE, adaptive_neighbourhoods, agreement_masks,
-    is_refit_pass,
+    AdaptiveNeighbourhoods, FLAT_MOMENTUM, FLAT_RING, GrowthRule, REFIT_TOLERANCE,
+    adaptive_neighbourhoods, agreement_masks, flat_passes, is_refit_pass,
 };
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
-use crate::smoothing::initial::{initial_passes, smooth_passes};
+use crate::smoothing::initial::{EarlyStop, initial_passes, smooth_passes};
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::normals::vertex_normals_f32;
 use crate::smoothing::project::FitStats;
@@ -271,6 +271,7 @@ pub fn wang_yu(
 
     let t = Instant::now();
     let passes = params.adaptive_passes;
+    let flat: Vec<bool> = ring.iter().map(|&k| k >= FLAT_RING).collect();
     let adaptive_fits = smooth_passes(
         mesh,
         topo,
@@ -285,10 +286,15 @@ pub fn wang_yu(
         passes,
         is_refit_pass,
         Some(REFIT_TOLERANCE),
+        Some(EarlyStop {
+            vertices: &flat,
+            momentum: FLAT_MOMENTUM,
+            passes: flat_passes(passes),
+        }),
         cancel,
         |p| progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64),
     )?;
-    drop(hoods);
+    drop((hoods, flat));
     let mut volume_offset = 0.0;
     let mut volume_not_restored = None;
     if params.preserve_volume && topo.num_boundary_edges() == 0 {

@@ -79,6 +79,34 @@ pub struct Refit<'a> {
 /// vertex is refitted at the next chance.
 pub const UNFITTED_DRIFT: f32 = f32::INFINITY;
 
+/// Momentum for some vertices' moves in [`fit_pass`] and [`weighted_pass`]:
+/// a vertex of `vertices` whose new move `m` points the same way as its
+/// previous one `p` (what `out` holds when the pass starts) moves by
+/// `m (1 + beta min(m . p / |m|, |m|) / |m|)`: at most `1 + beta` times
+/// `m`, and only where consecutive moves agree, so a vertex converging
+/// monotonically gets there in fewer passes and one that oscillates does
+/// not oscillate more.
+#[derive(Debug, Clone, Copy)]
+pub struct Momentum<'a> {
+    /// Whether each vertex takes momentum.
+    pub vertices: &'a [bool],
+    /// How much of the agreeing previous move is added.
+    pub beta: f32,
+}
+
+impl Momentum<'_> {
+    /// Vertex `v`'s move `m` with momentum from its previous move `prev`.
+    #[inline]
+    fn apply(&self, v: usize, m: Vec3, prev: Vec3) -> Vec3 {
+        let len = m.length();
+        let along = m.dot(prev);
+        if !self.vertices[v] || len <= 0.0 || along <= 0.0 {
+            return m;
+        }
+        m * (1.0 + self.beta * (along / len).min(len) / len)
+    }
+}
+
 /// One Jacobi pass: fits `model` to every movable vertex's neighbourhood in
 /// `positions` and writes each vertex's move to `out` (zero for immovable
 /// vertices; movable boundary vertices fit a plane). Neighbours
@@ -87,6 +115,8 @@ pub const UNFITTED_DRIFT: f32 = f32::INFINITY;
 /// With `refit`, keeps each fit's linear weights and the vertices' drift
 /// for [`weighted_pass`], and fits only `refit.stale` vertices (all when
 /// `None`).
+/// With `momentum`, the moves of its vertices take momentum from the moves
+/// `out` holds when the pass starts ([`Momentum`]).
 /// With `curvature`, also writes every vertex's `(H, K)` from its fit, as
 /// [`vertex_curvatures`](super::curvature::vertex_curvatures) computes it
 /// when `model` is the quadric and `hoods` are the same neighbourhoods
@@ -108,6 +138,7 @@ pub fn fit_pass(
     min_cos: f64,
     out: &mut [Vec3],
     refit: Option<Refit>,
+    momentum: Option<Momentum>,
     curvature: Option<&mut [(f64, f64)]>,
 ) -> FitStats {
     let stored = match hoods {
@@ -146,7 +177,7 @@ pub fn fit_pass(
             for (i, o) in out.iter_mut().enumerate() {
                 let v = c * CHUNK + i;
                 let p = positions[v];
-                *o = Vec3::ZERO;
+                let prev = std::mem::replace(o, Vec3::ZERO);
                 if let (Some((w, drift)), Some(stale)) = (kept.as_mut(), stale)
                     && !stale[v]
                 {
@@ -162,8 +193,7 @@ pub fn fit_pass(
                             v,
                             &mut stats,
                         );
-                        *o = m;
-                        drift[i] += d;
+                        (*o, drift[i]) = with_momentum(momentum, v, m, prev, drift[i], d);
                     }
                     continue;
                 }
@@ -224,13 +254,18 @@ pub fn fit_pass(
                 }
                 let g = fit.height;
                 let cut = step(topo, positions, v, g, &mut stats);
-                *o = (cut * n).as_vec3();
+                let failed = fit.kind == FitKind::Fixed || cut != g;
+                let (m, d) = with_momentum(
+                    momentum.filter(|_| !failed),
+                    v,
+                    (cut * n).as_vec3(),
+                    prev,
+                    0.0,
+                    cut.abs() as f32,
+                );
+                *o = m;
                 if let Some((_, drift)) = kept.as_mut() {
-                    drift[i] = if fit.kind == FitKind::Fixed || cut != g {
-                        UNFITTED_DRIFT
-                    } else {
-                        cut.abs() as f32
-                    };
+                    drift[i] = if failed { UNFITTED_DRIFT } else { d };
                 }
             }
             stats
@@ -240,7 +275,8 @@ pub fn fit_pass(
 
 /// One Jacobi pass that moves each vertex along its current normal by the
 /// height its last fit's linear `weights` give for the current heights of
-/// its neighbours ([`fit_neighbours_weighted`]): the fit repeated with its
+/// its neighbours ([`fit_neighbours_weighted`]), with `momentum` from the
+/// moves `out` holds when the pass starts ([`Momentum`]): the fit repeated with its
 /// frame coordinates and point weights kept, at the cost of one weighted
 /// sum, written as each vertex's move to `out`, its length added to the
 /// vertex's `drift` ([`UNFITTED_DRIFT`]). (Keeping the fit's normal
@@ -265,6 +301,7 @@ pub fn weighted_pass(
     drift: &mut [f32],
     movable: &[bool],
     out: &mut [Vec3],
+    momentum: Option<Momentum>,
 ) -> FitStats {
     out.par_chunks_mut(CHUNK)
         .zip(drift.par_chunks_mut(CHUNK))
@@ -274,19 +311,40 @@ pub fn weighted_pass(
             let mut w = Vec::new();
             for (i, (o, drift)) in out.iter_mut().zip(drift).enumerate() {
                 let v = c * CHUNK + i;
-                *o = Vec3::ZERO;
+                let prev = std::mem::replace(o, Vec3::ZERO);
                 if !movable[v] {
                     continue;
                 }
                 weights.get_f32_into(hoods, v, &mut w);
                 let (m, d) =
                     reused_move(mesh, topo, positions, hoods, &w, limits[v], v, &mut stats);
-                *o = m;
-                *drift += d;
+                (*o, *drift) = with_momentum(momentum, v, m, prev, *drift, d);
             }
             stats
         })
         .reduce(FitStats::default, FitStats::merge)
+}
+
+/// Vertex `v`'s move `m` (drift `d`, [`UNFITTED_DRIFT`]) with `momentum`
+/// from its previous move `prev`, and its drift `drift` plus the length of
+/// that move (or plus `d` when `d` is not finite: a failed move, which
+/// takes no momentum).
+#[inline]
+fn with_momentum(
+    momentum: Option<Momentum>,
+    v: usize,
+    m: Vec3,
+    prev: Vec3,
+    drift: f32,
+    d: f32,
+) -> (Vec3, f32) {
+    match momentum {
+        Some(momentum) if d.is_finite() => {
+            let moved = momentum.apply(v, m, prev);
+            (moved, drift + moved.length())
+        }
+        _ => (m, drift + d),
+    }
 }
 
 /// Vertex `v`'s move by its stored fit weights `w` (laid out by unit,
@@ -361,6 +419,27 @@ fn step(topo: &Topology, positions: &[DVec3], v: usize, g: f64, stats: &mut FitS
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn momentum_adds_only_where_consecutive_moves_agree() {
+        let vertices = [true, false];
+        let momentum = Momentum {
+            vertices: &vertices,
+            beta: 0.5,
+        };
+        let m = Vec3::new(0.0, 0.0, 0.2);
+        // A larger previous move the same way: half the new move is added.
+        assert_eq!(momentum.apply(0, m, Vec3::new(0.1, 0.0, 1.0)), m * 1.5);
+        // A smaller one: half of its part along the new move.
+        let with = momentum.apply(0, m, Vec3::new(0.3, 0.0, 0.1));
+        assert!((with - m * 1.25).length() < 1e-6, "{with}");
+        // Opposite, across, none, or a vertex without momentum: unchanged.
+        for prev in [-m, Vec3::X, Vec3::ZERO] {
+            assert_eq!(momentum.apply(0, m, prev), m);
+        }
+        assert_eq!(momentum.apply(1, m, m), m);
+        assert_eq!(momentum.apply(0, Vec3::ZERO, m), Vec3::ZERO);
+    }
     use crate::mesh::test_grid as grid;
 
     #[test]
@@ -389,7 +468,7 @@ mod tests {
             p[target] += lift * edge * normal;
             let mut drift = vec![0.25f32; mesh.num_vertices()];
             let stats = weighted_pass(
-                &mesh, &topo, &p, &hoods, &weights, &limits, &mut drift, &movable, &mut out,
+                &mesh, &topo, &p, &hoods, &weights, &limits, &mut drift, &movable, &mut out, None,
             );
             let moved = f64::from(out[centre].length());
             if moves {
