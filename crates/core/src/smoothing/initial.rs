@@ -73,39 +73,42 @@ pub fn smooth_passes(
             vertices: e.vertices,
             beta: e.momentum,
         });
-        let s = match kept.as_mut() {
-            Some((weights, drift, limits)) if !refits(pass) => weighted_pass(
-                mesh, topo, positions, hoods, weights, limits, drift, movable, &mut moves, momentum,
-            ),
-            kept => {
-                // Before the first fit every vertex is stale.
-                let stale = match (&kept, refit_tolerance) {
-                    (Some((_, drift, limits)), Some(t)) if pass > 0 => {
-                        Some(stale_vertices(topo, drift, limits, t))
-                    }
-                    _ => None,
-                };
-                let refit = kept.map(|(weights, drift, limits)| Refit {
-                    weights,
-                    drift,
-                    limits,
-                    stale: stale.as_deref(),
-                });
-                fit_pass(
-                    mesh,
-                    topo,
-                    positions,
-                    HoodSource::Stored(hoods),
-                    movable,
-                    model,
-                    min_cos,
-                    &mut moves,
-                    refit,
+        let s =
+            match kept.as_mut() {
+                Some((weights, drift, limits)) if !refits(pass) => weighted_pass(
+                    mesh, topo, positions, hoods, weights, limits, drift, movable, &mut moves,
                     momentum,
-                    None,
-                )
-            }
-        };
+                ),
+                kept => {
+                    // Before the first fit every vertex is stale.
+                    let stale =
+                        match (&kept, refit_tolerance) {
+                            (Some((_, drift, limits)), Some(t)) if pass > 0 => Some(
+                                stale_vertices(topo, drift, limits, t, early.map(|e| e.vertices)),
+                            ),
+                            _ => None,
+                        };
+                    let refit = kept.map(|(weights, drift, limits)| Refit {
+                        weights,
+                        drift,
+                        limits,
+                        stale: stale.as_deref(),
+                    });
+                    fit_pass(
+                        mesh,
+                        topo,
+                        positions,
+                        HoodSource::Stored(hoods),
+                        movable,
+                        model,
+                        min_cos,
+                        &mut moves,
+                        refit,
+                        momentum,
+                        None,
+                    )
+                }
+            };
         stats.accumulate(s);
         apply(positions, &moves);
         on_pass(pass + 1);
@@ -117,7 +120,10 @@ pub fn smooth_passes(
 /// where the fits converge slowly but steadily (flat regions with large
 /// neighbourhoods), momentum reaches in fewer passes what plain passes
 /// reach in all of them, and stopping there keeps the later passes' bias
-/// out ([`adaptive::FLAT_RING`](super::adaptive::FLAT_RING) has the
+/// out. They also keep their first fit's weights through the selective
+/// refits (unless a move on them failed): their neighbourhoods change
+/// shape too little for a refit to matter
+/// ([`adaptive::FLAT_RING`](super::adaptive::FLAT_RING) has the
 /// measurements).
 #[derive(Debug, Clone, Copy)]
 pub struct EarlyStop<'a> {
@@ -197,12 +203,22 @@ fn apply(positions: &mut [DVec3], moves: &[Vec3]) {
 /// The vertices a selective refit fits anew: those where the vertex or one
 /// of its neighbours drifted ([`UNFITTED_DRIFT`]) more than `tolerance`
 /// times the vertex's step limit (its mean input edge length) since its
-/// latest fit.
-pub fn stale_vertices(topo: &Topology, drift: &[f32], limits: &[f32], tolerance: f32) -> Vec<bool> {
+/// latest fit. Vertices of `keeping` ([`EarlyStop`]) are fitted anew only
+/// when their own move failed (infinite drift).
+pub fn stale_vertices(
+    topo: &Topology,
+    drift: &[f32],
+    limits: &[f32],
+    tolerance: f32,
+    keeping: Option<&[bool]>,
+) -> Vec<bool> {
     (0..drift.len())
         .into_par_iter()
         .with_min_len(4096)
         .map(|v| {
+            if keeping.is_some_and(|k| k[v]) {
+                return drift[v] == UNFITTED_DRIFT;
+            }
             let most = topo
                 .neighbors(v)
                 .iter()
@@ -354,6 +370,61 @@ mod tests {
     }
 
     #[test]
+    fn early_vertices_keep_their_first_fit() {
+        let (_, mesh) = shapes::voxel_sphere(6.0);
+        let topo = Topology::build(&mesh);
+        let hoods = Neighbourhoods::two_ring(&topo, 56);
+        let movable = vec![true; mesh.num_vertices()];
+        let all = vec![true; mesh.num_vertices()];
+        let never = AtomicBool::new(false);
+        // As in the pipeline, from a surface without its staircase.
+        let mut start = mesh.positions().to_vec();
+        initial_passes(
+            &mesh,
+            &topo,
+            &mut start,
+            &movable,
+            56,
+            0.0,
+            3,
+            &never,
+            |_| {},
+        )
+        .expect("not cancelled");
+        let fits = |early: Option<EarlyStop>| {
+            let mut p = start.clone();
+            let s = smooth_passes(
+                &mesh,
+                &topo,
+                &mut p,
+                &hoods,
+                &movable,
+                FitModel::Quadric,
+                0.0,
+                10,
+                is_refit_pass,
+                Some(REFIT_TOLERANCE),
+                early,
+                &never,
+                |_| {},
+            )
+            .expect("not cancelled");
+            assert_eq!(s.fixed_fallback + s.clamped, 0, "no failed move");
+            s.quadric + s.plane_fallback
+        };
+        let n = mesh.num_vertices() as u64;
+        // Refits at passes 4 and 9 (the last) fit again without early
+        // vertices; early ones that stop after pass 7 fit only at pass 0.
+        assert!(fits(None) > n);
+        let early = EarlyStop {
+            vertices: &all,
+            momentum: 0.8,
+            passes: 8,
+        };
+        assert_eq!(fits(Some(early)), n);
+    }
+
+    #[test]
     fn the_first_initial_pass_gives_the_curvature_of_the_start() {
         // A bumpy open grid: its boundary vertices do not move (fitted for
         // the curvature only), one interior vertex is held too.
@@ -407,11 +478,17 @@ mod tests {
         drift[moved] = 0.03;
         drift[failed] = UNFITTED_DRIFT;
         drift[settled] = 0.01;
-        let stale = stale_vertices(&topo, &drift, &limits, 0.02);
+        let stale = stale_vertices(&topo, &drift, &limits, 0.02, None);
         for (v, &is_stale) in stale.iter().enumerate() {
             let near = |c: usize| v == c || topo.neighbors(c).contains(&(v as u32));
             assert_eq!(is_stale, near(moved) || near(failed), "vertex {v}");
         }
         assert!(!stale[settled]);
+        // Vertices that keep their fit are stale only by their own failure.
+        let keeping = vec![true; mesh.num_vertices()];
+        let stale = stale_vertices(&topo, &drift, &limits, 0.02, Some(&keeping));
+        for (v, &is_stale) in stale.iter().enumerate() {
+            assert_eq!(is_stale, v == failed, "vertex {v}");
+        }
     }
 }
