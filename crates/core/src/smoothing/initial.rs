@@ -235,6 +235,17 @@ mod tests {
     use crate::smoothing::adaptive::{REFIT_TOLERANCE, is_refit_pass};
     use crate::smoothing::neighbourhood::push_thinned;
 
+    /// `mesh`'s positions after the initial passes, as in the pipeline: the
+    /// adaptive passes start from a surface without its staircase.
+    fn without_staircase(mesh: &Mesh, topo: &Topology) -> Vec<DVec3> {
+        let mut start = mesh.positions().to_vec();
+        let movable = vec![true; mesh.num_vertices()];
+        let never = AtomicBool::new(false);
+        initial_passes(mesh, topo, &mut start, &movable, 56, 0.0, 3, &never, |_| {})
+            .expect("not cancelled");
+        start
+    }
+
     #[test]
     fn reused_fits_track_fits_made_every_pass() {
         let (sphere, mesh) = shapes::voxel_sphere(8.0);
@@ -247,21 +258,8 @@ mod tests {
             push_thinned(w, 56, 14, out);
         });
         let movable = vec![true; mesh.num_vertices()];
-        // As in the pipeline: the staircase goes first, in passes that fit.
-        let mut start = mesh.positions().to_vec();
+        let start = without_staircase(&mesh, &topo);
         let never = AtomicBool::new(false);
-        initial_passes(
-            &mesh,
-            &topo,
-            &mut start,
-            &movable,
-            56,
-            0.0,
-            3,
-            &never,
-            |_| {},
-        )
-        .expect("not cancelled");
         let run = |start: &[DVec3], refit: &dyn Fn(u32) -> bool, tolerance: Option<f32>| {
             let mut p = start.to_vec();
             let stats = smooth_passes(
@@ -377,20 +375,7 @@ mod tests {
         let movable = vec![true; mesh.num_vertices()];
         let all = vec![true; mesh.num_vertices()];
         let never = AtomicBool::new(false);
-        // As in the pipeline, from a surface without its staircase.
-        let mut start = mesh.positions().to_vec();
-        initial_passes(
-            &mesh,
-            &topo,
-            &mut start,
-            &movable,
-            56,
-            0.0,
-            3,
-            &never,
-            |_| {},
-        )
-        .expect("not cancelled");
+        let start = without_staircase(&mesh, &topo);
         let fits = |early: Option<EarlyStop>| {
             let mut p = start.clone();
             let s = smooth_passes(
