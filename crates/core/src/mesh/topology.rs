@@ -44,72 +44,62 @@ pub struct Topology {
 impl Topology {
     /// Builds the adjacency of `mesh`. Face sides joining a vertex to itself
     /// (a repeated index) are not edges; such faces count as degenerate.
+    ///
+    /// The edges are sorted and gathered in parallel, a chunk of vertices
+    /// at a time and joined in order: the result does not depend on the
+    /// thread count.
     pub fn build(mesh: &Mesh) -> Topology {
         let n = mesh.num_vertices();
-        // Half-edges bucketed by their smaller end point.
-        let mut bucket_count = vec![0u32; n + 1];
+        // Half-edges bucketed by their smaller end point (a counting sort:
+        // serial, as atomic counters cost more than they share).
+        let mut bucket = vec![0u32; n + 1];
         let mut degenerate_faces = 0usize;
         for face in mesh.faces() {
-            let k = face.len();
-            let mut repeated = false;
-            for j in 0..k {
-                let a = face[j];
-                let b = face[(j + 1) % k];
-                if a == b {
-                    repeated = true;
-                    continue;
-                }
-                bucket_count[a.min(b) as usize + 1] += 1;
+            for (a, b) in sides(face) {
+                bucket[a.min(b) as usize + 1] += 1;
             }
-            if repeated || has_repeated_corner(face) {
-                degenerate_faces += 1;
-            }
+            degenerate_faces += usize::from(has_repeated_corner(face));
         }
-        prefix_sum(&mut bucket_count);
-        let mut fill = bucket_count.clone();
-        let total = bucket_count[n] as usize;
-        let mut half: Vec<(u32, u32)> = vec![(0, 0); total]; // (hi, face)
+        prefix_sum(&mut bucket);
+        let mut fill = bucket.clone();
+        // (larger end, face) packed in one word: sorting a bucket sorts by
+        // the larger end, then by face.
+        let mut half = vec![0u64; bucket[n] as usize];
         for (f, face) in mesh.faces().enumerate() {
-            let k = face.len();
-            for j in 0..k {
-                let a = face[j];
-                let b = face[(j + 1) % k];
-                if a == b {
-                    continue;
-                }
-                let lo = a.min(b) as usize;
-                let slot = &mut fill[lo];
-                half[*slot as usize] = (a.max(b), f as u32);
+            for (a, b) in sides(face) {
+                let slot = &mut fill[a.min(b) as usize];
+                half[*slot as usize] = u64::from(a.max(b)) << 32 | f as u64;
                 *slot += 1;
             }
         }
-        // Unique edges with their (deduplicated) faces.
-        let mut edges = Vec::with_capacity(total / 2 + 1);
-        let mut ef_offsets = Vec::with_capacity(total / 2 + 2);
-        let mut ef = Vec::with_capacity(total);
-        ef_offsets.push(0u32);
+        drop(fill);
+
+        // Unique edges with their (deduplicated) faces, in parallel over
+        // chunks of smaller end points, joined in order.
+        let parts: Vec<EdgePart> = chunk_runs(&mut half, &bucket)
+            .into_par_iter()
+            .map(|(first, half)| EdgePart::new(first, half, &bucket))
+            .collect();
+        drop(half);
+        let num_edges = parts.iter().map(|p| p.edges.len()).sum();
+        let mut edges: Vec<[u32; 2]> = Vec::with_capacity(num_edges);
+        let mut ef_offsets = Vec::with_capacity(num_edges + 1);
+        let mut ef = Vec::with_capacity(parts.iter().map(|p| p.ef.len()).sum());
         let mut edge_offsets = Vec::with_capacity(n + 1);
-        for lo in 0..n {
-            edge_offsets.push(edges.len() as u32);
-            let bucket = &mut half[bucket_count[lo] as usize..bucket_count[lo + 1] as usize];
-            bucket.sort_unstable();
-            let mut i = 0;
-            while i < bucket.len() {
-                let hi = bucket[i].0;
-                let mut last_face = u32::MAX;
-                while i < bucket.len() && bucket[i].0 == hi {
-                    if bucket[i].1 != last_face {
-                        ef.push(bucket[i].1);
-                        last_face = bucket[i].1;
-                    }
-                    i += 1;
-                }
-                edges.push([lo as u32, hi]);
-                ef_offsets.push(ef.len() as u32);
+        ef_offsets.push(0u32);
+        for part in parts {
+            let mut at = edges.len() as u32;
+            for count in part.edges_per_vertex {
+                edge_offsets.push(at);
+                at += count;
             }
+            let base = ef.len() as u32;
+            ef_offsets.extend(part.ef_ends.iter().map(|&e| base + e));
+            ef.extend_from_slice(&part.ef);
+            edges.extend_from_slice(&part.edges);
         }
         edge_offsets.push(edges.len() as u32);
-        drop(half);
+
         // Vertex -> vertex, sorted by neighbour within a vertex
         // because edges are produced in (lo, hi) order.
         let mut vv_offsets = vec![0u32; n + 1];
@@ -166,7 +156,7 @@ impl Topology {
         };
         topo.kinds = (0..n)
             .into_par_iter()
-            .with_min_len(4096)
+            .with_min_len(CHUNK)
             .map(|v| topo.classify(mesh, v))
             .collect();
         topo
@@ -357,9 +347,85 @@ fn has_repeated_corner(face: &[u32]) -> bool {
     face.iter().enumerate().any(|(j, v)| face[..j].contains(v))
 }
 
+/// Items (faces, edges, vertices) per parallel work item of the build.
+const CHUNK: usize = 4096;
+
+/// The sides `(a, b)` of `face` that join two different vertices.
+#[inline]
+fn sides(face: &[u32]) -> impl Iterator<Item = (u32, u32)> + '_ {
+    let k = face.len();
+    (0..k)
+        .map(move |j| (face[j], face[(j + 1) % k]))
+        .filter(|(a, b)| a != b)
+}
+
 fn prefix_sum(a: &mut [u32]) {
     for i in 1..a.len() {
         a[i] += a[i - 1];
+    }
+}
+
+/// `values` split into the runs of [`CHUNK`] consecutive vertices (run
+/// `v` is `offsets[v]..offsets[v + 1]`), each with its first vertex.
+fn chunk_runs<'a, T>(mut values: &'a mut [T], offsets: &[u32]) -> Vec<(usize, &'a mut [T])> {
+    let n = offsets.len() - 1;
+    let mut chunks = Vec::with_capacity(n.div_ceil(CHUNK));
+    for first in (0..n).step_by(CHUNK) {
+        let end = (first + CHUNK).min(n);
+        let len = (offsets[end] - offsets[first]) as usize;
+        let (chunk, rest) = std::mem::take(&mut values).split_at_mut(len);
+        chunks.push((first, chunk));
+        values = rest;
+    }
+    chunks
+}
+
+/// The edges whose smaller end lies in one chunk of vertices, with their
+/// faces ([`Topology::build`]).
+struct EdgePart {
+    edges: Vec<[u32; 2]>,
+    /// End of each edge's faces in `ef`.
+    ef_ends: Vec<u32>,
+    ef: Vec<u32>,
+    /// Edges of each vertex of the chunk (as the smaller end).
+    edges_per_vertex: Vec<u32>,
+}
+
+impl EdgePart {
+    /// From the half-edges `half` (packed larger end and face) of the
+    /// chunk starting at vertex `first`, bucketed by `bucket`.
+    fn new(first: usize, half: &mut [u64], bucket: &[u32]) -> EdgePart {
+        let end = (first + CHUNK).min(bucket.len() - 1);
+        let base = bucket[first];
+        let mut part = EdgePart {
+            edges: Vec::with_capacity(half.len() / 2 + 1),
+            ef_ends: Vec::with_capacity(half.len() / 2 + 1),
+            ef: Vec::with_capacity(half.len()),
+            edges_per_vertex: Vec::with_capacity(end - first),
+        };
+        for lo in first..end {
+            let b = &mut half[(bucket[lo] - base) as usize..(bucket[lo + 1] - base) as usize];
+            b.sort_unstable();
+            let before = part.edges.len();
+            let mut i = 0;
+            while i < b.len() {
+                let hi = (b[i] >> 32) as u32;
+                let mut last_face = u32::MAX;
+                while i < b.len() && (b[i] >> 32) as u32 == hi {
+                    let face = b[i] as u32;
+                    if face != last_face {
+                        part.ef.push(face);
+                        last_face = face;
+                    }
+                    i += 1;
+                }
+                part.edges.push([lo as u32, hi]);
+                part.ef_ends.push(part.ef.len() as u32);
+            }
+            part.edges_per_vertex
+                .push((part.edges.len() - before) as u32);
+        }
+        part
     }
 }
 
@@ -437,6 +503,71 @@ pub(crate) mod tests {
         let t = Topology::build(&m);
         assert_eq!(t.kind(0), VertexKind::NonManifold);
         assert_eq!(t.num_components(), 1);
+    }
+
+    #[test]
+    fn parallel_build_matches_a_plain_reference_on_a_scrambled_mesh() {
+        use std::collections::{BTreeMap, BTreeSet};
+        // Random faces of 3 to 5 corners over more vertices and faces than
+        // one chunk: non-manifold edges, repeated corners, isolated
+        // vertices and all.
+        let n = 3 * CHUNK as u32 + 17;
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = |m: u32| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state % u64::from(m)) as u32
+        };
+        let faces: Vec<Vec<u32>> = (0..5 * CHUNK)
+            .map(|_| {
+                let k = 3 + next(3);
+                let base = next(n - 40);
+                (0..k).map(|_| base + next(40)).collect()
+            })
+            .collect();
+        let m = Mesh::from_polygons(vec![DVec3::ZERO; n as usize], &faces).unwrap();
+        let t = Topology::build(&m);
+
+        let mut edge_faces: BTreeMap<(u32, u32), BTreeSet<u32>> = BTreeMap::new();
+        let mut vertex_faces = vec![BTreeSet::new(); n as usize];
+        let mut degenerate = 0;
+        for (f, face) in faces.iter().enumerate() {
+            degenerate += usize::from(has_repeated_corner(face));
+            for j in 0..face.len() {
+                let (a, b) = (face[j], face[(j + 1) % face.len()]);
+                vertex_faces[a as usize].insert(f as u32);
+                if a != b {
+                    edge_faces
+                        .entry((a.min(b), a.max(b)))
+                        .or_default()
+                        .insert(f as u32);
+                }
+            }
+        }
+        assert_eq!(t.num_degenerate_faces(), degenerate);
+        let edges: Vec<[u32; 2]> = edge_faces.keys().map(|&(a, b)| [a, b]).collect();
+        assert_eq!(t.edges(), &edges[..]);
+        for (e, faces) in edge_faces.values().enumerate() {
+            assert_eq!(
+                t.edge_faces(e),
+                &faces.iter().copied().collect::<Vec<_>>()[..]
+            );
+        }
+        let mut neighbours = vec![BTreeSet::new(); n as usize];
+        for (e, &[a, b]) in edges.iter().enumerate() {
+            neighbours[a as usize].insert(b);
+            neighbours[b as usize].insert(a);
+            assert_eq!(t.edge(b as usize, a as usize), Some(e));
+        }
+        for v in 0..n as usize {
+            let nb: Vec<u32> = neighbours[v].iter().copied().collect();
+            assert_eq!(t.neighbors(v), &nb[..], "vertex {v}");
+            let vf: Vec<u32> = vertex_faces[v].iter().copied().collect();
+            assert_eq!(t.vertex_faces(v), &vf[..], "vertex {v}");
+        }
+        assert!(t.kinds().contains(&VertexKind::Isolated));
+        assert!(t.num_non_manifold_edges() > 0);
     }
 
     #[test]

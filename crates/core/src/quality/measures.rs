@@ -399,34 +399,6 @@ fn fan_volume(face: &[u32], positions: &[DVec3]) -> f64 {
     v
 }
 
-/// Mean length of the face sides (each side counted once per face, as
-/// [`crate::mesh::mean_edge_length`]), in parallel with a fixed summation
-/// order; 0 without faces.
-pub(crate) fn mean_side_length(mesh: &Mesh, positions: &[DVec3]) -> f64 {
-    let nf = mesh.num_faces();
-    let chunks: Vec<(f64, u64)> = (0..nf.div_ceil(CHUNK))
-        .into_par_iter()
-        .map(|c| {
-            let (mut sum, mut count) = (0.0, 0u64);
-            for f in c * CHUNK..((c + 1) * CHUNK).min(nf) {
-                let face = mesh.face(f);
-                let mut prev = positions[face[face.len() - 1] as usize];
-                for &v in face {
-                    let p = positions[v as usize];
-                    sum += p.distance(prev);
-                    prev = p;
-                }
-                count += face.len() as u64;
-            }
-            (sum, count)
-        })
-        .collect();
-    let (sum, count) = chunks
-        .iter()
-        .fold((0.0, 0u64), |a, b| (a.0 + b.0, a.1 + b.1));
-    if count == 0 { 0.0 } else { sum / count as f64 }
-}
-
 /// Short edges and boundary edges.
 fn edge_pass(topo: &Topology, positions: &[DVec3], threshold: f64) -> (u64, u64) {
     let edges = topo.edges();
@@ -512,33 +484,93 @@ pub fn mean_curvature_variation(topo: &Topology, curvature: &[(f64, f64)]) -> f6
 
 /// Size and topology figures of `mesh` (whose adjacency is `topo`).
 pub fn mesh_statistics(mesh: &Mesh, topo: &Topology) -> MeshStatistics {
-    let positions = mesh.positions();
-    let mut s = MeshStatistics {
+    // The components' union-find is serial: it runs beside the rest.
+    let (components, (faces, edges)) = rayon::join(
+        || topo.num_components() as u64,
+        || rayon::join(|| face_counts(mesh), || edge_counts(topo)),
+    );
+    MeshStatistics {
         vertices: mesh.num_vertices() as u64,
         faces: mesh.num_faces() as u64,
         edges: topo.edges().len() as u64,
+        triangles: faces.triangles,
+        quads: faces.quads,
+        polygons: faces.polygons,
+        max_face_arity: faces.max_arity,
+        degenerate_faces: faces.degenerate,
+        boundary_edges: edges.boundary,
+        non_manifold_edges: edges.non_manifold,
+        max_faces_per_edge: edges.max_faces,
+        boundary_vertices: topo.count_kind(VertexKind::Boundary) as u64,
+        non_manifold_vertices: topo.count_kind(VertexKind::NonManifold) as u64,
+        isolated_vertices: topo.count_kind(VertexKind::Isolated) as u64,
+        components,
+        closed: edges.boundary == 0,
         ..MeshStatistics::default()
-    };
-    for face in mesh.faces() {
-        match face.len() {
-            3 => s.triangles += 1,
-            4 => s.quads += 1,
-            _ => s.polygons += 1,
-        }
-        s.max_face_arity = s.max_face_arity.max(face.len() as u64);
-        if has_repeated_corner(face) || vector_area(face, positions) == DVec3::ZERO {
-            s.degenerate_faces += 1;
-        }
     }
-    s.boundary_edges = topo.num_boundary_edges() as u64;
-    s.non_manifold_edges = topo.num_non_manifold_edges() as u64;
-    s.max_faces_per_edge = topo.max_faces_per_edge() as u64;
-    s.boundary_vertices = topo.count_kind(VertexKind::Boundary) as u64;
-    s.non_manifold_vertices = topo.count_kind(VertexKind::NonManifold) as u64;
-    s.isolated_vertices = topo.count_kind(VertexKind::Isolated) as u64;
-    s.components = topo.num_components() as u64;
-    s.closed = s.boundary_edges == 0;
-    s
+}
+
+/// Face counts of [`mesh_statistics`].
+#[derive(Clone, Copy, Default)]
+struct FaceCounts {
+    triangles: u64,
+    quads: u64,
+    polygons: u64,
+    max_arity: u64,
+    degenerate: u64,
+}
+
+fn face_counts(mesh: &Mesh) -> FaceCounts {
+    let positions = mesh.positions();
+    (0..mesh.num_faces())
+        .into_par_iter()
+        .with_min_len(CHUNK)
+        .fold(FaceCounts::default, |mut c, f| {
+            let face = mesh.face(f);
+            match face.len() {
+                3 => c.triangles += 1,
+                4 => c.quads += 1,
+                _ => c.polygons += 1,
+            }
+            c.max_arity = c.max_arity.max(face.len() as u64);
+            if has_repeated_corner(face) || vector_area(face, positions) == DVec3::ZERO {
+                c.degenerate += 1;
+            }
+            c
+        })
+        .reduce(FaceCounts::default, |a, b| FaceCounts {
+            triangles: a.triangles + b.triangles,
+            quads: a.quads + b.quads,
+            polygons: a.polygons + b.polygons,
+            max_arity: a.max_arity.max(b.max_arity),
+            degenerate: a.degenerate + b.degenerate,
+        })
+}
+
+/// Edge counts of [`mesh_statistics`].
+#[derive(Clone, Copy, Default)]
+struct EdgeCounts {
+    boundary: u64,
+    non_manifold: u64,
+    max_faces: u64,
+}
+
+fn edge_counts(topo: &Topology) -> EdgeCounts {
+    (0..topo.edges().len())
+        .into_par_iter()
+        .with_min_len(CHUNK)
+        .fold(EdgeCounts::default, |mut c, e| {
+            let faces = topo.edge_faces(e).len() as u64;
+            c.boundary += u64::from(faces == 1);
+            c.non_manifold += u64::from(faces > 2);
+            c.max_faces = c.max_faces.max(faces);
+            c
+        })
+        .reduce(EdgeCounts::default, |a, b| EdgeCounts {
+            boundary: a.boundary + b.boundary,
+            non_manifold: a.non_manifold + b.non_manifold,
+            max_faces: a.max_faces.max(b.max_faces),
+        })
 }
 
 #[cfg(test)]

@@ -25,8 +25,7 @@
 //! Only edges with two interior end points and exactly two faces move.
 
 use super::local::{LocalSurface, MoveTester, ordered_link};
-use super::measures::mean_side_length;
-use crate::mesh::{Mesh, Topology, VertexKind};
+use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length};
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -78,7 +77,7 @@ pub fn fix_short_edges(
     max_sweeps: u32,
     min_normal_cos: f64,
 ) -> ShortEdgeStats {
-    let threshold = fraction * mean_side_length(mesh, positions);
+    let threshold = fraction * mean_edge_length(mesh, positions);
     let mut short = short_edges(topo, positions, threshold);
     let mut stats = ShortEdgeStats {
         threshold,
