@@ -14,6 +14,7 @@ pub mod quality;
 pub mod report;
 pub mod shapes;
 pub mod smoothing;
+mod sort;
 
 pub use error::MeshError;
 pub use mesh::{Mesh, Topology, VertexKind};

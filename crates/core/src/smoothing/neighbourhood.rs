@@ -10,6 +10,7 @@
 
 use super::adaptive::BEAM_WIDTH;
 use crate::mesh::{RingWalker, Topology};
+use crate::sort::sort_short;
 use half::f16;
 use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
@@ -288,7 +289,7 @@ impl Neighbourhoods {
                                 starts.push(units.len() as u32);
                                 list.clear();
                                 select(v, &mut w, &mut list);
-                                list.sort_unstable();
+                                sort_short(&mut list);
                                 encode(&list, &mut units);
                             }
                             units.to_vec()
