@@ -23,6 +23,7 @@ use crate::smoothing::quadric_fit::FitModel;
 use crate::smoothing::volume::restore_volume;
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::DVec3;
+use rayon::prelude::*;
 use serde::Serialize;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -236,11 +237,11 @@ pub fn wang_yu(
 
     let l = mean_edge_length(mesh, &positions);
     let labels: Vec<Label> = hk
-        .iter()
+        .par_iter()
         .map(|&(h, k)| label(h, k, l, params.tolerance_h, params.tolerance_k))
         .collect();
     // Single precision: growth compares spreads of about 0.005.
-    let h_scaled: Vec<f32> = hk.iter().map(|&(h, _)| (h * l) as f32).collect();
+    let h_scaled: Vec<f32> = hk.par_iter().map(|&(h, _)| (h * l) as f32).collect();
     let rule = GrowthRule {
         k_max: params.k_max,
         max_points,
@@ -271,7 +272,7 @@ pub fn wang_yu(
 
     let t = Instant::now();
     let passes = params.adaptive_passes;
-    let flat: Vec<bool> = ring.iter().map(|&k| k >= FLAT_RING).collect();
+    let flat: Vec<bool> = ring.par_iter().map(|&k| k >= FLAT_RING).collect();
     let adaptive_fits = smooth_passes(
         mesh,
         topo,
