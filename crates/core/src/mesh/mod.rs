@@ -10,6 +10,7 @@ mod topology;
 pub(crate) use topology::tests::grid as test_grid;
 
 pub use ring::RingWalker;
+pub(crate) use topology::has_repeated_corner;
 pub use topology::{Topology, VertexKind};
 
 use crate::error::MeshError;

@@ -343,8 +343,15 @@ impl Topology {
     }
 }
 
-fn has_repeated_corner(face: &[u32]) -> bool {
-    face.iter().enumerate().any(|(j, v)| face[..j].contains(v))
+/// True when a face repeats a corner index (a degenerate face; its angles
+/// are undefined). Triangles and quads are compared directly.
+#[inline]
+pub(crate) fn has_repeated_corner(face: &[u32]) -> bool {
+    match *face {
+        [a, b, c] => a == b || a == c || b == c,
+        [a, b, c, d] => a == b || a == c || a == d || b == c || b == d || c == d,
+        _ => face.iter().enumerate().any(|(j, v)| face[..j].contains(v)),
+    }
 }
 
 /// Items (faces, edges, vertices) per parallel work item of the build.

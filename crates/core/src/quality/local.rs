@@ -8,6 +8,7 @@
 //! falls as the angle grows), so no `acos` runs in the hot loops. A corner
 //! with a zero-length side counts as a 0° angle (cosine 1).
 
+pub(crate) use crate::mesh::has_repeated_corner;
 use crate::mesh::{Mesh, Topology, vector_area};
 use crate::smoothing::frame::Frame;
 use crate::smoothing::normals::vertex_normal;
@@ -41,10 +42,15 @@ pub(crate) fn triangle_cosines(a: DVec3, b: DVec3, c: DVec3) -> [f64; 3] {
     ]
 }
 
-/// True when a face repeats a corner index (its angles are undefined).
-#[inline]
-pub(crate) fn has_repeated_corner(face: &[u32]) -> bool {
-    face.iter().enumerate().any(|(j, v)| face[..j].contains(v))
+/// The positions of the first `N` corners of `face`, which has at least
+/// `N` (an array `map` here was left out of line: a call per face).
+#[inline(always)]
+pub(crate) fn corners<const N: usize>(face: &[u32], positions: &[DVec3]) -> [DVec3; N] {
+    let mut out = [DVec3::ZERO; N];
+    for (o, &v) in out.iter_mut().zip(face) {
+        *o = positions[v as usize];
+    }
+    out
 }
 
 /// Calls `f(a, b, c)` for each triangle of the split of `face`, with the
@@ -117,7 +123,7 @@ pub(crate) fn is_twisted(face: &[u32], positions: &[DVec3]) -> bool {
     if face.len() != 4 {
         return false;
     }
-    let [p1, p2, p3, p4] = [0, 1, 2, 3].map(|j| positions[face[j] as usize]);
+    let [p1, p2, p3, p4] = corners(face, positions);
     let n1 = (p2 - p1).cross(p3 - p1);
     let n2 = (p4 - p3).cross(p1 - p3);
     n1.dot(n2) < 0.0

@@ -12,7 +12,7 @@
 
 use crate::mesh::{Mesh, Topology, VertexKind, vector_area};
 use crate::quality::local::{
-    cos_between, for_each_split_triangle, has_repeated_corner, is_inverted, is_twisted,
+    corners, cos_between, for_each_split_triangle, has_repeated_corner, is_inverted, is_twisted,
     triangle_cosines,
 };
 use crate::report::{
@@ -276,8 +276,8 @@ fn measure_triangle(
     table: &AngleTable,
     acc: &mut FaceAcc,
 ) {
-    let [p0, p1, p2] = [0, 1, 2].map(|j| positions[face[j] as usize]);
-    let [q0, q1, q2] = [0, 1, 2].map(|j| input[face[j] as usize]);
+    let [p0, p1, p2] = corners(face, positions);
+    let [q0, q1, q2] = corners(face, input);
     let (e01, e12, e20) = (p1 - p0, p2 - p1, p0 - p2);
     let (l01, l12, l20) = (e01.length(), e12.length(), e20.length());
     acc.side_sum += l01 + l12 + l20;
@@ -307,8 +307,8 @@ fn measure_quad(
     table: &AngleTable,
     acc: &mut FaceAcc,
 ) {
-    let [p0, p1, p2, p3] = [0, 1, 2, 3].map(|j| positions[face[j] as usize]);
-    let [q0, q1, q2, q3] = [0, 1, 2, 3].map(|j| input[face[j] as usize]);
+    let [p0, p1, p2, p3] = corners(face, positions);
+    let [q0, q1, q2, q3] = corners(face, input);
     let (e01, e12, e23, e30, d02) = (p1 - p0, p2 - p1, p3 - p2, p0 - p3, p2 - p0);
     let (l01, l12, l23, l30, l02) = (
         e01.length(),
