@@ -194,17 +194,30 @@ impl Mesh {
 }
 
 /// Vector area of the polygon `face` over `positions` (see
-/// [`Mesh::face_vector_area`]).
-#[inline]
+/// [`Mesh::face_vector_area`]): half the cross product of the diagonals for
+/// a quad, else fanned from the first corner (translation invariant and
+/// exact for planar polygons). Triangles and quads are computed inline,
+/// other polygons in a call.
+#[inline(always)]
 pub fn vector_area(face: &[u32], positions: &[DVec3]) -> DVec3 {
-    let n = face.len();
-    if n == 4 {
-        let d1 = positions[face[2] as usize] - positions[face[0] as usize];
-        let d2 = positions[face[3] as usize] - positions[face[1] as usize];
-        return 0.5 * d1.cross(d2);
+    match *face {
+        [a, b, c] => {
+            let o = positions[a as usize];
+            0.5 * (positions[b as usize] - o).cross(positions[c as usize] - o)
+        }
+        [a, b, c, d] => {
+            let d1 = positions[c as usize] - positions[a as usize];
+            let d2 = positions[d as usize] - positions[b as usize];
+            0.5 * d1.cross(d2)
+        }
+        _ => polygon_vector_area(face, positions),
     }
-    // Fan from the first corner: translation invariant and exact for planar
-    // polygons.
+}
+
+/// [`vector_area`] of a face that is neither a triangle nor a quad.
+#[inline(never)]
+fn polygon_vector_area(face: &[u32], positions: &[DVec3]) -> DVec3 {
+    let n = face.len();
     let o = positions[face[0] as usize];
     let mut s = DVec3::ZERO;
     for j in 1..n.saturating_sub(1) {

@@ -32,6 +32,7 @@ pub fn vertex_normals_f32(mesh: &Mesh, topo: &Topology, positions: &[DVec3]) -> 
 }
 
 /// Unit area-weighted normal of vertex `v` (zero without area).
+#[inline]
 pub fn vertex_normal(mesh: &Mesh, topo: &Topology, positions: &[DVec3], v: usize) -> DVec3 {
     let s: DVec3 = topo
         .vertex_faces(v)
