@@ -84,14 +84,49 @@ impl NeighbourWeights {
     }
 }
 
-/// `w` converted to single precision into `out` (replacing its contents):
-/// one vector conversion instead of one per weight. (`out` is resized, not
-/// cleared first: the conversion overwrites every entry, and a cleared
-/// buffer would be zeroed anew for every vertex.)
+/// `w` converted to single precision into `out` (replacing its contents),
+/// eight at a time with F16C where the CPU has it (one call a list; the
+/// `half` crate's slice conversion makes one a chunk), else by `half`. The
+/// conversion is exact either way. (`out` is resized, not cleared first:
+/// the conversion overwrites every entry, and a cleared buffer would be
+/// zeroed anew for every vertex.)
 #[inline]
 fn widen_into(w: &[f16], out: &mut Vec<f32>) {
     out.resize(w.len(), 0.0);
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("f16c") && std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the CPU supports F16C and AVX (checked just above).
+        return unsafe { widen_f16c(w, out) };
+    }
     w.convert_to_f32_slice(out);
+}
+
+/// [`widen_into`]'s conversion with F16C, `w` and `out` of equal length.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx,f16c")]
+fn widen_f16c(w: &[f16], out: &mut [f32]) {
+    use std::arch::x86_64::{__m128i, _mm_loadu_si128, _mm256_cvtph_ps, _mm256_storeu_ps};
+    let convert = |h: &[f16; 8], f: &mut [f32; 8]| {
+        // SAFETY: 8 halves (16 bytes) in, 8 singles (32 bytes) out, both
+        // unaligned accesses within the arrays.
+        unsafe {
+            let x = _mm256_cvtph_ps(_mm_loadu_si128(h.as_ptr().cast::<__m128i>()));
+            _mm256_storeu_ps(f.as_mut_ptr(), x);
+        }
+    };
+    let mut hs = w.chunks_exact(8);
+    let mut fs = out.chunks_exact_mut(8);
+    for (h, f) in (&mut hs).zip(&mut fs) {
+        if let (Ok(h), Ok(f)) = (<&[f16; 8]>::try_from(h), <&mut [f32; 8]>::try_from(f)) {
+            convert(h, f);
+        }
+    }
+    let (h_rest, f_rest) = (hs.remainder(), fs.into_remainder());
+    let mut h = [f16::ZERO; 8];
+    let mut f = [0.0f32; 8];
+    h[..h_rest.len()].copy_from_slice(h_rest);
+    convert(&h, &mut f);
+    f_rest.copy_from_slice(&f[..f_rest.len()]);
 }
 
 /// The weights of one chunk of vertices ([`NeighbourWeights::chunks_mut`]).
@@ -517,6 +552,27 @@ mod tests {
             assert_eq!(as_f32[unit], i as f32);
         }
         assert!(weights.get(&hoods, v + 1).iter().all(|w| *w == f16::ZERO));
+    }
+
+    #[test]
+    fn widening_is_the_exact_conversion_at_every_length() {
+        let all: Vec<f16> = (0..40u16)
+            .map(|i| f16::from_bits(i.wrapping_mul(0x9E37) ^ 0x3C00))
+            .chain([
+                f16::INFINITY,
+                f16::NEG_INFINITY,
+                f16::MIN_POSITIVE_SUBNORMAL,
+            ])
+            .collect();
+        let mut out = vec![7.0; 3];
+        for len in 0..=all.len() {
+            widen_into(&all[..len], &mut out);
+            let expected: Vec<f32> = all[..len].iter().map(|h| h.to_f32()).collect();
+            assert_eq!(out.len(), len);
+            for (a, b) in out.iter().zip(&expected) {
+                assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()));
+            }
+        }
     }
 
     #[test]
