@@ -3,7 +3,10 @@
 //!
 //! `cargo bench -p meshsmooth-core --bench pipeline` (each size runs in its
 //! own process so its peak memory, VmHWM, is its own). Prints figures; asserts
-//! nothing. `-- 110` runs one radius in this process.
+//! nothing. `-- 110` runs one radius in this process; `-- 110 5` runs it 5
+//! times and ends with the median and fastest wall time and the median CPU
+//! time (user + system, all threads): on a shared machine single runs vary
+//! by 10% or more, so compare medians of runs taken in turn.
 
 use meshsmooth_core::{NoProgress, Params, run, shapes};
 use std::process::Command;
@@ -17,11 +20,28 @@ fn peak_rss_bytes() -> Option<u64> {
     Some(kb * 1024)
 }
 
-fn one(radius: f64) {
+/// CPU time of this process so far (user + system, all threads), in
+/// seconds, from `/proc/self/stat` (in clock ticks of 1/100 s).
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are the
+    // 14th and 15th fields of the whole line.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let mut fields = rest.split_whitespace().skip(11);
+    let utime: f64 = fields.next()?.parse().ok()?;
+    let stime: f64 = fields.next()?.parse().ok()?;
+    Some((utime + stime) / 100.0)
+}
+
+/// One timed run at `radius`: prints its figures, returns (wall, CPU)
+/// seconds. Peak memory is printed for a process's first run only (later
+/// runs' peaks include what the earlier ones left to the allocator).
+fn one(radius: f64, first: bool) -> (f64, f64) {
     let t = Instant::now();
     let (sphere, mesh) = shapes::voxel_sphere(radius);
     let gen_ms = t.elapsed().as_secs_f64() * 1e3;
     let before = peak_rss_bytes().unwrap_or(0);
+    let cpu_before = cpu_seconds().unwrap_or(0.0);
     let t = Instant::now();
     let out = run(
         &mesh,
@@ -31,6 +51,7 @@ fn one(radius: f64) {
     )
     .expect("run");
     let wall = t.elapsed().as_secs_f64();
+    let cpu = cpu_seconds().unwrap_or(0.0) - cpu_before;
     let n = mesh.num_vertices();
     let peak = peak_rss_bytes().unwrap_or(0);
     let stages: Vec<String> = out
@@ -39,13 +60,20 @@ fn one(radius: f64) {
         .iter()
         .map(|s| format!("{} {:.0}", s.stage, s.ms))
         .collect();
+    let memory = if first {
+        format!(
+            "peak RSS {:.0} MB = {:.0} B/vertex (mesh generation {gen_ms:.0} ms, RSS before run {:.0} MB)",
+            peak as f64 / 1e6,
+            peak as f64 / n as f64,
+            before as f64 / 1e6,
+        )
+    } else {
+        "peak RSS: first run only".to_string()
+    };
     println!(
-        "r={radius:<4} vertices {n:>8}  wall {wall:>6.3} s  ({:.2} us/vertex)  rms {:.4}  peak RSS {:.0} MB = {:.0} B/vertex (mesh generation {gen_ms:.0} ms, RSS before run {:.0} MB)",
+        "r={radius:<4} vertices {n:>8}  wall {wall:>6.3} s  ({:.2} us/vertex, CPU {cpu:.2} s)  rms {:.4}  {memory}",
         wall * 1e6 / n as f64,
         shapes::rms_distance(&sphere, &out.positions),
-        peak as f64 / 1e6,
-        peak as f64 / n as f64,
-        before as f64 / 1e6,
     );
     println!("        stages (ms): {}", stages.join(", "));
     if let Some(w) = &out.report.wang_yu {
@@ -55,6 +83,13 @@ fn one(radius: f64) {
             (f.cubic + f.quadric + f.plane + f.fixed) as f64 / n as f64
         );
     }
+    (wall, cpu)
+}
+
+/// The median of `x` (the upper one of an even count).
+fn median(mut x: Vec<f64>) -> f64 {
+    x.sort_by(f64::total_cmp);
+    x[x.len() / 2]
 }
 
 fn main() {
@@ -63,7 +98,17 @@ fn main() {
         .filter(|a| !a.starts_with('-'))
         .collect();
     if let Some(r) = args.first().and_then(|a| a.parse::<f64>().ok()) {
-        one(r);
+        let repeats: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(1).max(1);
+        let runs: Vec<(f64, f64)> = (0..repeats).map(|i| one(r, i == 0)).collect();
+        if repeats > 1 {
+            let walls: Vec<f64> = runs.iter().map(|r| r.0).collect();
+            let fastest = walls.iter().copied().fold(f64::INFINITY, f64::min);
+            println!(
+                "r={r}: {repeats} runs, wall median {:.3} s, fastest {fastest:.3} s, CPU median {:.2} s",
+                median(walls),
+                median(runs.iter().map(|r| r.1).collect()),
+            );
+        }
         return;
     }
     println!("threads: {}", rayon::current_num_threads());
