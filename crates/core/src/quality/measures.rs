@@ -31,8 +31,10 @@ const COS_EPS: f64 = 1e-12;
 /// Cells of the uniform grid over the cosine range `[-1, 1]` that maps a
 /// cosine to its bin with one multiplication and one table look-up.
 const GRID: usize = 4096;
-/// Marks a grid cell that holds a bin edge (the exact comparison decides).
-const STRADDLE: u8 = u8::MAX;
+/// Marks a grid cell that holds a bin edge: one comparison with that edge
+/// decides (cells are far narrower than the bins, so a cell holds at most
+/// one edge). The other bits hold the bin below the edge.
+const STRADDLE: u8 = 0x80;
 
 /// Cosines of the bin edges, and the grid, computed once per measure.
 struct AngleTable {
@@ -40,7 +42,8 @@ struct AngleTable {
     /// edges), decreasing.
     edges: [f64; ANGLE_BINS - 1],
     /// Bin of every cosine in grid cell `k`, which covers `[-1 + 2k/GRID,
-    /// -1 + 2(k+1)/GRID)`, or `STRADDLE`.
+    /// -1 + 2(k+1)/GRID)`, or `STRADDLE` with the bin of the cosines
+    /// beyond the cell's edge.
     cells: Vec<u8>,
 }
 
@@ -56,10 +59,11 @@ impl AngleTable {
             .map(|k| {
                 let lo = -1.0 + k as f64 * width - margin;
                 let hi = lo + width + 2.0 * margin;
+                let above = edges.iter().filter(|&&e| e >= hi).count() as u8;
                 if edges.iter().any(|&e| e >= lo && e < hi) {
-                    STRADDLE
+                    STRADDLE | above
                 } else {
-                    edges.iter().filter(|&&e| e >= hi).count() as u8
+                    above
                 }
             })
             .collect();
@@ -71,10 +75,14 @@ impl AngleTable {
     #[inline]
     fn bin(&self, c: f64) -> usize {
         let k = (((c + 1.0) * (GRID as f64 * 0.5)) as usize).min(GRID);
-        match self.cells[k] {
-            STRADDLE => self.edges.partition_point(|&e| c <= e),
-            b => b as usize,
+        let cell = self.cells[k];
+        let above = usize::from(cell & !STRADDLE);
+        if cell & STRADDLE == 0 {
+            return above;
         }
+        // The edges before `above` lie beyond the cell, those after it
+        // below: only edge `above` itself needs comparing.
+        above + usize::from(self.edges.get(above).is_some_and(|&e| c <= e))
     }
 }
 
@@ -695,6 +703,16 @@ mod tests {
         assert_eq!(t.bin(1.0), 0);
         assert_eq!(t.bin(-1.0), ANGLE_BINS - 1);
         assert_eq!(t.bin(45f64.to_radians().cos()), 9);
+        // At and next to every edge, the grid gives what a search over all
+        // edges gives.
+        for &e in &t.edges {
+            for d in [0.0, 1e-16, 1e-14, 1e-12, 1e-10, 1e-6] {
+                for c in [e - d, e + d, e - COS_EPS - d, e - COS_EPS + d] {
+                    let c = c.clamp(-1.0, 1.0);
+                    assert_eq!(t.bin(c), t.edges.partition_point(|&e| c <= e), "cos {c}");
+                }
+            }
+        }
     }
 
     #[test]
