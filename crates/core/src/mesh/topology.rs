@@ -354,7 +354,7 @@ pub(crate) fn has_repeated_corner(face: &[u32]) -> bool {
     }
 }
 
-/// Items (faces, edges, vertices) per parallel work item of the build.
+/// Vertices per parallel work item of the build.
 const CHUNK: usize = 4096;
 
 /// The sides `(a, b)` of `face` that join two different vertices.

@@ -33,7 +33,8 @@ const COS_EPS: f64 = 1e-12;
 const GRID: usize = 4096;
 /// Marks a grid cell that holds a bin edge: one comparison with that edge
 /// decides (cells are far narrower than the bins, so a cell holds at most
-/// one edge). The other bits hold the bin below the edge.
+/// one edge). The other bits hold the bin of the cell's cosines above the
+/// edge; those at or below it fall in the next bin.
 const STRADDLE: u8 = 0x80;
 
 /// Cosines of the bin edges, and the grid, computed once per measure.
@@ -42,8 +43,8 @@ struct AngleTable {
     /// edges), decreasing.
     edges: [f64; ANGLE_BINS - 1],
     /// Bin of every cosine in grid cell `k`, which covers `[-1 + 2k/GRID,
-    /// -1 + 2(k+1)/GRID)`, or `STRADDLE` with the bin of the cosines
-    /// beyond the cell's edge.
+    /// -1 + 2(k+1)/GRID)`, or `STRADDLE` with the bin of the cell's cosines
+    /// above its edge.
     cells: Vec<u8>,
 }
 
