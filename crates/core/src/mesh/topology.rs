@@ -46,102 +46,21 @@ impl Topology {
     /// (a repeated index) are not edges; such faces count as degenerate.
     ///
     /// The edges are sorted and gathered in parallel, a chunk of vertices
-    /// at a time and joined in order: the result does not depend on the
-    /// thread count.
+    /// at a time and joined in order, beside the vertex -> face lists: the
+    /// result does not depend on the thread count.
     pub fn build(mesh: &Mesh) -> Topology {
-        let n = mesh.num_vertices();
-        // Half-edges bucketed by their smaller end point (a counting sort:
-        // serial, as atomic counters cost more than they share).
-        let mut bucket = vec![0u32; n + 1];
-        let mut degenerate_faces = 0usize;
-        for face in mesh.faces() {
-            for (a, b) in sides(face) {
-                bucket[a.min(b) as usize + 1] += 1;
-            }
-            degenerate_faces += usize::from(has_repeated_corner(face));
-        }
-        prefix_sum(&mut bucket);
-        let mut fill = bucket.clone();
-        // (larger end, face) packed in one word: sorting a bucket sorts by
-        // the larger end, then by face.
-        let mut half = vec![0u64; bucket[n] as usize];
-        for (f, face) in mesh.faces().enumerate() {
-            for (a, b) in sides(face) {
-                let slot = &mut fill[a.min(b) as usize];
-                half[*slot as usize] = u64::from(a.max(b)) << 32 | f as u64;
-                *slot += 1;
-            }
-        }
-        drop(fill);
-
-        // Unique edges with their (deduplicated) faces, in parallel over
-        // chunks of smaller end points, joined in order.
-        let parts: Vec<EdgePart> = chunk_runs(&mut half, &bucket)
-            .into_par_iter()
-            .map(|(first, half)| EdgePart::new(first, half, &bucket))
-            .collect();
-        drop(half);
-        let num_edges = parts.iter().map(|p| p.edges.len()).sum();
-        let mut edges: Vec<[u32; 2]> = Vec::with_capacity(num_edges);
-        let mut ef_offsets = Vec::with_capacity(num_edges + 1);
-        let mut ef = Vec::with_capacity(parts.iter().map(|p| p.ef.len()).sum());
-        let mut edge_offsets = Vec::with_capacity(n + 1);
-        ef_offsets.push(0u32);
-        for part in parts {
-            let mut at = edges.len() as u32;
-            for count in part.edges_per_vertex {
-                edge_offsets.push(at);
-                at += count;
-            }
-            let base = ef.len() as u32;
-            ef_offsets.extend(part.ef_ends.iter().map(|&e| base + e));
-            ef.extend_from_slice(&part.ef);
-            edges.extend_from_slice(&part.edges);
-        }
-        edge_offsets.push(edges.len() as u32);
-
-        // Vertex -> vertex, sorted by neighbour within a vertex
-        // because edges are produced in (lo, hi) order.
-        let mut vv_offsets = vec![0u32; n + 1];
-        for e in &edges {
-            vv_offsets[e[0] as usize + 1] += 1;
-            vv_offsets[e[1] as usize + 1] += 1;
-        }
-        prefix_sum(&mut vv_offsets);
-        let mut fill = vv_offsets.clone();
-        let mut vv = vec![0u32; vv_offsets[n] as usize];
-        // Entries where the vertex is `hi` come first (their `lo` is smaller).
-        for e in &edges {
-            let s = &mut fill[e[1] as usize];
-            vv[*s as usize] = e[0];
-            *s += 1;
-        }
-        for e in &edges {
-            let s = &mut fill[e[0] as usize];
-            vv[*s as usize] = e[1];
-            *s += 1;
-        }
-        // Vertex -> face, each face once per vertex, in face order.
-        let mut vf_offsets = vec![0u32; n + 1];
-        for face in mesh.faces() {
-            for (j, &v) in face.iter().enumerate() {
-                if !face[..j].contains(&v) {
-                    vf_offsets[v as usize + 1] += 1;
-                }
-            }
-        }
-        prefix_sum(&mut vf_offsets);
-        let mut fill = vf_offsets.clone();
-        let mut vf = vec![0u32; vf_offsets[n] as usize];
-        for (f, face) in mesh.faces().enumerate() {
-            for (j, &v) in face.iter().enumerate() {
-                if !face[..j].contains(&v) {
-                    let s = &mut fill[v as usize];
-                    vf[*s as usize] = f as u32;
-                    *s += 1;
-                }
-            }
-        }
+        // The vertices' face lists need no edges: built beside them.
+        let (edges, (vf_offsets, vf)) =
+            rayon::join(|| Edges::build(mesh), || vertex_face_lists(mesh));
+        let Edges {
+            edges,
+            edge_offsets,
+            ef_offsets,
+            ef,
+            vv_offsets,
+            vv,
+            degenerate_faces,
+        } = edges;
         let mut topo = Topology {
             vv_offsets,
             vv,
@@ -154,7 +73,7 @@ impl Topology {
             kinds: Vec::new(),
             degenerate_faces,
         };
-        topo.kinds = (0..n)
+        topo.kinds = (0..mesh.num_vertices())
             .into_par_iter()
             .with_min_len(CHUNK)
             .map(|v| topo.classify(mesh, v))
@@ -352,6 +271,132 @@ pub(crate) fn has_repeated_corner(face: &[u32]) -> bool {
         [a, b, c, d] => a == b || a == c || a == d || b == c || b == d || c == d,
         _ => face.iter().enumerate().any(|(j, v)| face[..j].contains(v)),
     }
+}
+
+/// What [`Topology::build`] derives from the face sides: the unique edges
+/// with their faces, the vertex -> vertex lists and the count of
+/// degenerate faces (fields as in [`Topology`]).
+struct Edges {
+    edges: Vec<[u32; 2]>,
+    edge_offsets: Vec<u32>,
+    ef_offsets: Vec<u32>,
+    ef: Vec<u32>,
+    vv_offsets: Vec<u32>,
+    vv: Vec<u32>,
+    degenerate_faces: usize,
+}
+
+impl Edges {
+    fn build(mesh: &Mesh) -> Edges {
+        let n = mesh.num_vertices();
+        // Half-edges bucketed by their smaller end point (a counting sort:
+        // serial, as atomic counters cost more than they share).
+        let mut bucket = vec![0u32; n + 1];
+        let mut degenerate_faces = 0usize;
+        for face in mesh.faces() {
+            for (a, b) in sides(face) {
+                bucket[a.min(b) as usize + 1] += 1;
+            }
+            degenerate_faces += usize::from(has_repeated_corner(face));
+        }
+        prefix_sum(&mut bucket);
+        let mut fill = bucket.clone();
+        // (larger end, face) packed in one word: sorting a bucket sorts by
+        // the larger end, then by face.
+        let mut half = vec![0u64; bucket[n] as usize];
+        for (f, face) in mesh.faces().enumerate() {
+            for (a, b) in sides(face) {
+                let slot = &mut fill[a.min(b) as usize];
+                half[*slot as usize] = u64::from(a.max(b)) << 32 | f as u64;
+                *slot += 1;
+            }
+        }
+        drop(fill);
+
+        // Unique edges with their (deduplicated) faces, in parallel over
+        // chunks of smaller end points, joined in order.
+        let parts: Vec<EdgePart> = chunk_runs(&mut half, &bucket)
+            .into_par_iter()
+            .map(|(first, half)| EdgePart::new(first, half, &bucket))
+            .collect();
+        drop(half);
+        let num_edges = parts.iter().map(|p| p.edges.len()).sum();
+        let mut edges: Vec<[u32; 2]> = Vec::with_capacity(num_edges);
+        let mut ef_offsets = Vec::with_capacity(num_edges + 1);
+        let mut ef = Vec::with_capacity(parts.iter().map(|p| p.ef.len()).sum());
+        let mut edge_offsets = Vec::with_capacity(n + 1);
+        ef_offsets.push(0u32);
+        for part in parts {
+            let mut at = edges.len() as u32;
+            for count in part.edges_per_vertex {
+                edge_offsets.push(at);
+                at += count;
+            }
+            let base = ef.len() as u32;
+            ef_offsets.extend(part.ef_ends.iter().map(|&e| base + e));
+            ef.extend_from_slice(&part.ef);
+            edges.extend_from_slice(&part.edges);
+        }
+        edge_offsets.push(edges.len() as u32);
+
+        // Vertex -> vertex, sorted by neighbour within a vertex
+        // because edges are produced in (lo, hi) order.
+        let mut vv_offsets = vec![0u32; n + 1];
+        for e in &edges {
+            vv_offsets[e[0] as usize + 1] += 1;
+            vv_offsets[e[1] as usize + 1] += 1;
+        }
+        prefix_sum(&mut vv_offsets);
+        let mut fill = vv_offsets.clone();
+        let mut vv = vec![0u32; vv_offsets[n] as usize];
+        // Entries where the vertex is `hi` come first (their `lo` is smaller).
+        for e in &edges {
+            let s = &mut fill[e[1] as usize];
+            vv[*s as usize] = e[0];
+            *s += 1;
+        }
+        for e in &edges {
+            let s = &mut fill[e[0] as usize];
+            vv[*s as usize] = e[1];
+            *s += 1;
+        }
+        Edges {
+            edges,
+            edge_offsets,
+            ef_offsets,
+            ef,
+            vv_offsets,
+            vv,
+            degenerate_faces,
+        }
+    }
+}
+
+/// Vertex -> face lists of `mesh` (offsets, faces): each face once per
+/// vertex, in face order.
+fn vertex_face_lists(mesh: &Mesh) -> (Vec<u32>, Vec<u32>) {
+    let n = mesh.num_vertices();
+    let mut vf_offsets = vec![0u32; n + 1];
+    for face in mesh.faces() {
+        for (j, &v) in face.iter().enumerate() {
+            if !face[..j].contains(&v) {
+                vf_offsets[v as usize + 1] += 1;
+            }
+        }
+    }
+    prefix_sum(&mut vf_offsets);
+    let mut fill = vf_offsets.clone();
+    let mut vf = vec![0u32; vf_offsets[n] as usize];
+    for (f, face) in mesh.faces().enumerate() {
+        for (j, &v) in face.iter().enumerate() {
+            if !face[..j].contains(&v) {
+                let s = &mut fill[v as usize];
+                vf[*s as usize] = f as u32;
+                *s += 1;
+            }
+        }
+    }
+    (vf_offsets, vf)
 }
 
 /// Vertices per parallel work item of the build.
