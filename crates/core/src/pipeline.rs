@@ -388,15 +388,22 @@ pub fn run(
     // input's curvature variation comes from those fits.
     let input_curvature =
         (params.method != Method::WangYu).then(|| stage_curvature(mesh, &topo, input, params));
-    let mut report = QualityReport::new(mesh_statistics(mesh, &topo), Reproducibility::new(params));
-    report.stages.input = Some(measure_stage(
-        mesh,
-        &topo,
-        input,
-        input,
-        input_curvature.as_deref(),
-        fraction,
-    ));
+    // The statistics' union-find is serial: it runs beside the measures.
+    let (statistics, input_measures) = rayon::join(
+        || mesh_statistics(mesh, &topo),
+        || {
+            measure_stage(
+                mesh,
+                &topo,
+                input,
+                input,
+                input_curvature.as_deref(),
+                fraction,
+            )
+        },
+    );
+    let mut report = QualityReport::new(statistics, Reproducibility::new(params));
+    report.stages.input = Some(input_measures);
     drop(input_curvature);
     timings.push((Stage::Analyse, ms(t)));
     progress.update(Stage::Analyse, 1.0);
