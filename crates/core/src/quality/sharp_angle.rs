@@ -339,13 +339,18 @@ pub fn fix_sharp_angles(
             searched = true;
         }
         let around = if moved.is_empty() { &stuck } else { &moved };
+        // Tens of thousands of faces after a first sweep: in parallel.
         let mut faces: Vec<u32> = around
-            .iter()
-            .flat_map(|&v| topo.vertex_faces(v as usize).iter().copied())
+            .par_iter()
+            .flat_map_iter(|&v| topo.vertex_faces(v as usize).iter().copied())
             .collect();
-        faces.sort_unstable();
+        faces.par_sort_unstable();
         faces.dedup();
-        faces.retain(|&f| needs_work(mesh.face(f as usize), positions, input, cos_limit));
+        let p: &[DVec3] = positions;
+        let faces: Vec<u32> = faces
+            .into_par_iter()
+            .filter(|&f| needs_work(mesh.face(f as usize), p, input, cos_limit))
+            .collect();
         visit = corners_of(mesh, topo, &faces);
     }
     stats.faces_remaining = count_sharp(mesh, positions, cos_limit);
