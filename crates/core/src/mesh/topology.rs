@@ -50,29 +50,9 @@ impl Topology {
     /// result does not depend on the thread count.
     pub fn build(mesh: &Mesh) -> Topology {
         // The vertices' face lists need no edges: built beside them.
-        let (edges, (vf_offsets, vf)) =
-            rayon::join(|| Edges::build(mesh), || vertex_face_lists(mesh));
-        let Edges {
-            edges,
-            edge_offsets,
-            ef_offsets,
-            ef,
-            vv_offsets,
-            vv,
-            degenerate_faces,
-        } = edges;
-        let mut topo = Topology {
-            vv_offsets,
-            vv,
-            edge_offsets,
-            vf_offsets,
-            vf,
-            edges,
-            ef_offsets,
-            ef,
-            kinds: Vec::new(),
-            degenerate_faces,
-        };
+        let (mut topo, (vf_offsets, vf)) =
+            rayon::join(|| Topology::edges_of(mesh), || vertex_face_lists(mesh));
+        (topo.vf_offsets, topo.vf) = (vf_offsets, vf);
         topo.kinds = (0..mesh.num_vertices())
             .into_par_iter()
             .with_min_len(CHUNK)
@@ -273,21 +253,11 @@ pub(crate) fn has_repeated_corner(face: &[u32]) -> bool {
     }
 }
 
-/// What [`Topology::build`] derives from the face sides: the unique edges
-/// with their faces, the vertex -> vertex lists and the count of
-/// degenerate faces (fields as in [`Topology`]).
-struct Edges {
-    edges: Vec<[u32; 2]>,
-    edge_offsets: Vec<u32>,
-    ef_offsets: Vec<u32>,
-    ef: Vec<u32>,
-    vv_offsets: Vec<u32>,
-    vv: Vec<u32>,
-    degenerate_faces: usize,
-}
-
-impl Edges {
-    fn build(mesh: &Mesh) -> Edges {
+impl Topology {
+    /// What [`Topology::build`] derives from the face sides: the unique
+    /// edges with their faces, the vertex -> vertex lists and the count of
+    /// degenerate faces (no vertex -> face lists or kinds yet).
+    fn edges_of(mesh: &Mesh) -> Topology {
         let n = mesh.num_vertices();
         // Half-edges bucketed by their smaller end point (a counting sort:
         // serial, as atomic counters cost more than they share).
@@ -360,13 +330,16 @@ impl Edges {
             vv[*s as usize] = e[1];
             *s += 1;
         }
-        Edges {
-            edges,
-            edge_offsets,
-            ef_offsets,
-            ef,
+        Topology {
             vv_offsets,
             vv,
+            edge_offsets,
+            vf_offsets: Vec::new(),
+            vf: Vec::new(),
+            edges,
+            ef_offsets,
+            ef,
+            kinds: Vec::new(),
             degenerate_faces,
         }
     }
