@@ -171,20 +171,12 @@ fn parameter_file_and_flags_combine() {
     )
     .unwrap();
     let (output, report) = (dir.join("out.obj"), dir.join("report.json"));
-    let out = meshsmooth(&[
-        "smooth",
-        path_str(&input),
-        "-o",
-        path_str(&output),
-        "--params",
-        path_str(&params),
-        "--iterations",
-        "5",
-        "--report",
-        path_str(&report),
-    ]);
-    assert_eq!(code(&out), 0, "{}", stderr(&out));
-    let report: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let report = smooth_with_report(
+        &input,
+        &output,
+        &report,
+        &["--params", path_str(&params), "--iterations", "5"],
+    );
     let used = &report["reproducibility"]["params"];
     assert_eq!(used["method"], "laplacian");
     assert_eq!(used["baseline"]["iterations"], 5);
@@ -307,17 +299,7 @@ fn report_prints_the_measures_of_a_mesh() {
     }
     // The measures are a smoothing report's input stage, curvature included.
     let (output, report) = (dir.join("out.obj"), dir.join("report.json"));
-    let out = meshsmooth(&[
-        "smooth",
-        path_str(&input),
-        "-o",
-        path_str(&output),
-        "--report",
-        path_str(&report),
-        "-q",
-    ]);
-    assert_eq!(code(&out), 0, "{}", stderr(&out));
-    let smoothed: Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let smoothed = smooth_with_report(&input, &output, &report, &["-q"]);
     let variation = &json["measures"]["curvature_variation"];
     assert!(
         variation["mean_scaled"].as_f64().unwrap() > 0.0,
@@ -398,6 +380,23 @@ fn read_report(path: &Path) -> Value {
     serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
 }
 
+/// Runs `meshsmooth smooth INPUT -o OUTPUT --report REPORT EXTRA...`,
+/// checks that it succeeds and returns the report.
+fn smooth_with_report(input: &Path, output: &Path, report: &Path, extra: &[&str]) -> Value {
+    let mut args = vec![
+        "smooth",
+        path_str(input),
+        "-o",
+        path_str(output),
+        "--report",
+        path_str(report),
+    ];
+    args.extend_from_slice(extra);
+    let out = meshsmooth(&args);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    read_report(report)
+}
+
 fn vertex_count(bytes: &[u8], format: Format, weld: bool) -> usize {
     let options = io::ReadOptions {
         weld: Some(weld),
@@ -421,17 +420,7 @@ fn stl_soups_are_welded_and_keep_their_vertices() {
 
     // STL is welded by default: the smoother sees the closed ball.
     let (output, report) = (dir.join("out.stl"), dir.join("report.json"));
-    let out = meshsmooth(&[
-        "smooth",
-        path_str(&input),
-        "-o",
-        path_str(&output),
-        "--report",
-        path_str(&report),
-        "-q",
-    ]);
-    assert_eq!(code(&out), 0, "{}", stderr(&out));
-    let report = read_report(&report);
+    let report = smooth_with_report(&input, &output, &report, &["-q"]);
     assert_eq!(report["schema_version"], "2.0");
     assert_eq!(report["mesh"]["vertices"], mesh.num_vertices());
     assert_eq!(report["mesh"]["file_vertices"], file_vertices);
@@ -450,18 +439,7 @@ fn stl_soups_are_welded_and_keep_their_vertices() {
 
     // `--no-weld` smooths the soup as it is: nothing to join, nothing counted.
     let (output, report) = (dir.join("soup.stl"), dir.join("soup.json"));
-    let out = meshsmooth(&[
-        "smooth",
-        path_str(&input),
-        "-o",
-        path_str(&output),
-        "--report",
-        path_str(&report),
-        "--no-weld",
-        "-q",
-    ]);
-    assert_eq!(code(&out), 0, "{}", stderr(&out));
-    let report = read_report(&report);
+    let report = smooth_with_report(&input, &output, &report, &["--no-weld", "-q"]);
     assert_eq!(report["mesh"]["vertices"], file_vertices);
     assert_eq!(report["mesh"]["file_vertices"], Value::Null);
     assert_eq!(report["mesh"]["closed"], false);
@@ -491,19 +469,7 @@ fn weld_flag_joins_an_obj_soup() {
     assert_eq!(json["mesh"]["closed"], true);
 
     let (output, report) = (dir.join("out.obj"), dir.join("report.json"));
-    let out = meshsmooth(&[
-        "smooth",
-        path_str(&input),
-        "-o",
-        path_str(&output),
-        "--report",
-        path_str(&report),
-        "--no-weld",
-        "--weld",
-        "-q",
-    ]);
-    assert_eq!(code(&out), 0, "{}", stderr(&out));
-    let report = read_report(&report);
+    let report = smooth_with_report(&input, &output, &report, &["--no-weld", "--weld", "-q"]);
     assert_eq!(report["mesh"]["vertices"], mesh.num_vertices());
     assert_eq!(report["mesh"]["file_vertices"], file_vertices);
     assert_eq!(report["reproducibility"]["params"]["weld"], true);
