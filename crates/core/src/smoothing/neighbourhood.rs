@@ -306,6 +306,19 @@ impl Neighbourhoods {
     where
         F: Fn(usize, &mut RingWalker, &mut Vec<u32>) + Sync,
     {
+        Neighbourhoods::build_chunked(topo, |_, _| (), |(), v, w, out| select(v, w, out))
+    }
+
+    /// Like [`Neighbourhoods::build`], with per-chunk state: `prepare(range,
+    /// walker)` runs first for each chunk of [`CHUNK`] vertices (`range`),
+    /// then `select(&state, v, walker, out)` for each of its vertices in
+    /// order. `select` may append an entry more than once. The chunks are
+    /// fixed, so the result does not depend on the thread count.
+    pub fn build_chunked<S, P, F>(topo: &Topology, prepare: P, select: F) -> Neighbourhoods
+    where
+        P: Fn(Range<usize>, &mut RingWalker) -> S + Sync,
+        F: Fn(&S, usize, &mut RingWalker, &mut Vec<u32>) + Sync,
+    {
         let n = topo.num_vertices();
         let built: Vec<(Vec<u32>, Vec<u16>)> = (0..n.div_ceil(CHUNK))
             .into_par_iter()
@@ -320,11 +333,13 @@ impl Neighbourhoods {
                             let (mut w, mut list, mut units) =
                                 (w.borrow_mut(), list.borrow_mut(), units.borrow_mut());
                             units.clear();
+                            let state = prepare(range.clone(), &mut w);
                             for v in range {
                                 starts.push(units.len() as u32);
                                 list.clear();
-                                select(v, &mut w, &mut list);
+                                select(&state, v, &mut w, &mut list);
                                 sort_short(&mut list);
+                                list.dedup();
                                 encode(&list, &mut units);
                             }
                             units.to_vec()
@@ -436,44 +451,111 @@ pub fn select_rings(
     push_thinned(w, max_points, max_points / 2, out);
 }
 
+/// How [`push_thinned`] thins a walk: its first `kept_rings` rings whole
+/// (`kept` points), then `quota[r]` points of each later ring `r`.
+#[derive(Debug, Clone, Copy)]
+pub struct Thinning {
+    /// Inner rings kept whole.
+    pub kept_rings: usize,
+    /// Points in them.
+    pub kept: usize,
+    /// Points taken from ring `r` (1-based), for `r > kept_rings`; every
+    /// point of every ring when the walk holds at most `max_points`.
+    pub quota: [u16; MAX_RINGS + 1],
+}
+
+/// Most rings a [`Thinning`] plans for (the largest `k_max`).
+pub const MAX_RINGS: usize = 32;
+
+impl Default for Thinning {
+    fn default() -> Self {
+        Thinning {
+            kept_rings: 0,
+            kept: 0,
+            quota: [0; MAX_RINGS + 1],
+        }
+    }
+}
+
+impl Thinning {
+    /// The thinning of `w`'s rings to at most `max_points` points, inner
+    /// rings kept whole while they total at most `whole_inner`, the rest of
+    /// the budget shared among the outer rings in proportion to their sizes.
+    pub fn plan(w: &RingWalker, max_points: usize, whole_inner: usize) -> Thinning {
+        let rings = w.rings().min(MAX_RINGS);
+        let mut kept_rings = 0;
+        let mut kept = 0;
+        while kept_rings < rings && kept + w.ring(kept_rings + 1).len() <= whole_inner {
+            kept += w.ring(kept_rings + 1).len();
+            kept_rings += 1;
+        }
+        let mut quota = [0u16; MAX_RINGS + 1];
+        for (r, q) in quota.iter_mut().enumerate().take(kept_rings + 1).skip(1) {
+            *q = w.ring(r).len() as u16;
+        }
+        let all = w.found().len();
+        if all <= max_points {
+            for (r, q) in quota.iter_mut().enumerate().take(rings + 1).skip(1) {
+                *q = w.ring(r).len() as u16;
+            }
+            return Thinning {
+                kept_rings,
+                kept,
+                quota,
+            };
+        }
+        let (rest, budget) = (all - kept, max_points - kept);
+        let mut taken = 0usize;
+        let mut seen = 0usize;
+        for (r, q) in quota
+            .iter_mut()
+            .enumerate()
+            .take(rings + 1)
+            .skip(kept_rings + 1)
+        {
+            seen += w.ring(r).len();
+            let share = budget * seen / rest - taken;
+            taken += share;
+            *q = share as u16;
+        }
+        Thinning {
+            kept_rings,
+            kept,
+            quota,
+        }
+    }
+}
+
+/// Appends `quota` points of `ring`, evenly spread along it.
+#[inline]
+pub fn push_ring_sample(ring: &[u32], quota: usize, out: &mut Vec<u32>) {
+    if quota >= ring.len() {
+        out.extend_from_slice(ring);
+        return;
+    }
+    let step = ring.len() as f64 / quota as f64;
+    for q in 0..quota {
+        let idx = ((q as f64 + 0.5) * step) as usize;
+        out.push(ring[idx.min(ring.len() - 1)]);
+    }
+}
+
 /// Appends the walker's rings to `out`, at most `max_points` of them: inner
 /// rings are kept whole while they total at most `whole_inner` points, and
 /// the remaining budget is shared among the outer rings in proportion to
 /// their sizes, each thinned by an even stride so the points stay spread
-/// around the vertex.
-pub fn push_thinned(w: &RingWalker, max_points: usize, whole_inner: usize, out: &mut Vec<u32>) {
-    let all = w.found();
-    if all.len() <= max_points {
-        out.extend_from_slice(all);
-        return;
+/// around the vertex ([`Thinning`]). Returns the plan.
+pub fn push_thinned(
+    w: &RingWalker,
+    max_points: usize,
+    whole_inner: usize,
+    out: &mut Vec<u32>,
+) -> Thinning {
+    let plan = Thinning::plan(w, max_points, whole_inner);
+    for r in 1..=w.rings().min(MAX_RINGS) {
+        push_ring_sample(w.ring(r), usize::from(plan.quota[r]), out);
     }
-    // Keep whole rings from the inside while they fit.
-    let mut kept_rings = 0;
-    let mut kept = 0;
-    while kept_rings < w.rings() && kept + w.ring(kept_rings + 1).len() <= whole_inner {
-        kept += w.ring(kept_rings + 1).len();
-        kept_rings += 1;
-    }
-    out.extend_from_slice(&all[..kept]);
-    let rest = &all[kept..];
-    let budget = max_points - kept;
-    // Spread the budget over the outer rings by their sizes.
-    let mut taken = 0usize;
-    let mut seen = 0usize;
-    for r in kept_rings + 1..=w.rings() {
-        let ring = w.ring(r);
-        seen += ring.len();
-        let quota = budget * seen / rest.len() - taken;
-        taken += quota;
-        if quota == 0 {
-            continue;
-        }
-        let step = ring.len() as f64 / quota as f64;
-        for q in 0..quota {
-            let idx = ((q as f64 + 0.5) * step) as usize;
-            out.push(ring[idx.min(ring.len() - 1)]);
-        }
-    }
+    plan
 }
 
 #[cfg(test)]
