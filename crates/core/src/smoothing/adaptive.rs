@@ -28,7 +28,7 @@
 //! after [`flat_passes`] of the passes.
 
 use super::label::{Label, agrees};
-use super::neighbourhood::{Neighbourhoods, Thinning, push_ring_sample, push_thinned};
+use super::neighbourhood::{Neighbourhoods, Thinning, pick_seeds, push_ring_sample, push_thinned};
 use crate::mesh::{RingWalker, Topology};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -311,63 +311,35 @@ struct SeedChunk {
 }
 
 impl SeedChunk {
-    /// Picks the seeds of `range` and grows them with `grow_and_thin`. In
-    /// vertex order, each vertex not yet next to a seed makes a seed of
-    /// whichever of itself and its neighbours in the chunk is next to the
-    /// most vertices without one (the last on ties).
+    /// Picks the seeds of `range` ([`pick_seeds`]) and grows them with
+    /// `grow_and_thin`.
     fn grow(
         topo: &Topology,
         range: Range<usize>,
         w: &mut RingWalker,
         grow_and_thin: &impl Fn(usize, &mut RingWalker, &mut Vec<u32>) -> (Growth, Thinning),
     ) -> SeedChunk {
-        const NONE: u32 = u32::MAX;
         let first = range.start;
-        let local = |j: u32| (j as usize).checked_sub(first).filter(|&l| l < range.len());
-        let mut seed = vec![NONE; range.len()];
-        let unseeded = |seed: &[u32], c: usize| {
-            usize::from(seed[c] == NONE)
-                + topo
-                    .neighbors(first + c)
-                    .iter()
-                    .filter(|&&j| local(j).is_some_and(|l| seed[l] == NONE))
-                    .count()
-        };
+        let seed = pick_seeds(topo, range);
         let mut grown = vec![
             Grown {
                 growth: Growth::default(),
                 thinning: Thinning::default(),
                 list: 0..0,
             };
-            range.len()
+            seed.len()
         ];
         let mut lists = Vec::new();
-        for v in 0..range.len() {
-            if seed[v] != NONE {
-                continue;
+        for (s, grown) in grown.iter_mut().enumerate() {
+            if seed[s] as usize == s {
+                let start = lists.len();
+                let (growth, thinning) = grow_and_thin(first + s, w, &mut lists);
+                *grown = Grown {
+                    growth,
+                    thinning,
+                    list: start..lists.len(),
+                };
             }
-            let (mut s, mut best) = (v, unseeded(&seed, v));
-            for l in topo.neighbors(first + v).iter().filter_map(|&j| local(j)) {
-                let c = unseeded(&seed, l);
-                if c > best || (c == best && l > s) {
-                    (s, best) = (l, c);
-                }
-            }
-            seed[s] = s as u32;
-            for &j in topo.neighbors(first + s) {
-                if let Some(l) = local(j)
-                    && seed[l] == NONE
-                {
-                    seed[l] = s as u32;
-                }
-            }
-            let start = lists.len();
-            let (growth, thinning) = grow_and_thin(first + s, w, &mut lists);
-            grown[s] = Grown {
-                growth,
-                thinning,
-                list: start..lists.len(),
-            };
         }
         SeedChunk {
             first,

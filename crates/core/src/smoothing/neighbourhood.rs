@@ -397,6 +397,48 @@ impl Neighbourhoods {
     }
 }
 
+/// Seeds for the vertices of `range` (a chunk of [`CHUNK`]): for each, the
+/// index in `range` of its seed, itself or a neighbour in `range`, so every
+/// vertex is at most one edge from its seed. In vertex order, each vertex
+/// not yet next to a seed makes a seed of whichever of itself and its
+/// neighbours in `range` is next to the most vertices without one (the
+/// last on ties): on a voxel sphere about 30% of the vertices are seeds.
+pub fn pick_seeds(topo: &Topology, range: Range<usize>) -> Vec<u32> {
+    const NONE: u32 = u32::MAX;
+    let first = range.start;
+    let local = |j: u32| (j as usize).checked_sub(first).filter(|&l| l < range.len());
+    let mut seed = vec![NONE; range.len()];
+    let unseeded = |seed: &[u32], c: usize| {
+        usize::from(seed[c] == NONE)
+            + topo
+                .neighbors(first + c)
+                .iter()
+                .filter(|&&j| local(j).is_some_and(|l| seed[l] == NONE))
+                .count()
+    };
+    for v in 0..range.len() {
+        if seed[v] != NONE {
+            continue;
+        }
+        let (mut s, mut best) = (v, unseeded(&seed, v));
+        for l in topo.neighbors(first + v).iter().filter_map(|&j| local(j)) {
+            let c = unseeded(&seed, l);
+            if c > best || (c == best && l > s) {
+                (s, best) = (l, c);
+            }
+        }
+        seed[s] = s as u32;
+        for &j in topo.neighbors(first + s) {
+            if let Some(l) = local(j)
+                && seed[l] == NONE
+            {
+                seed[l] = s as u32;
+            }
+        }
+    }
+    seed
+}
+
 /// Where a fitting pass takes each vertex's neighbours from.
 #[derive(Debug, Clone, Copy)]
 pub enum HoodSource<'a> {
