@@ -350,11 +350,10 @@ impl SeedChunk {
     }
 }
 
-/// Walks vertex `v`'s first `rings` rings as growth does and appends them
-/// thinned as `thinning` (its seed's) thins them. False, with `out` partly
-/// written, when `v` keeps another number of inner rings whole (its
-/// seed's quotas would not fit) or keeps all `rings` whole, or its
-/// component ends first.
+/// Walks vertex `v`'s first `rings` rings as growth does and appends them:
+/// its inner rings whole as [`push_thinned`] keeps them, the others thinned
+/// to the quotas of `thinning` (its seed's). False, with `out` partly
+/// written, when `v` keeps all `rings` whole or its component ends first.
 fn push_near_rings(
     topo: &Topology,
     v: usize,
@@ -376,7 +375,7 @@ fn push_near_rings(
         kept += w.ring(kept_rings + 1).len();
         kept_rings += 1;
     }
-    if kept_rings != thinning.kept_rings || kept_rings == rings {
+    if kept_rings == rings {
         return false;
     }
     for r in 1..=rings {
