@@ -1,6 +1,7 @@
 //! k-ring queries: `N_k(i)`, every vertex within `k` edges of `i` (not `i`).
 
 use super::Topology;
+use super::topology::NEIGHBOR_BLOCK;
 
 /// Breadth-first ring walker with reusable scratch, so repeated queries
 /// allocate nothing once warmed up. One walker per thread.
@@ -8,8 +9,11 @@ use super::Topology;
 pub struct RingWalker {
     stamp: Vec<u32>,
     generation: u32,
-    /// Vertices found so far, ring by ring (the centre is not included).
+    /// Vertices found so far, ring by ring (the centre is not included):
+    /// the first `len` entries. The buffer only grows, so walks after the
+    /// first write into memory already there.
     found: Vec<u32>,
+    len: usize,
     /// `found[ring_starts[r]..ring_starts[r+1]]` is ring `r + 1`.
     ring_starts: Vec<usize>,
     centre: u32,
@@ -34,7 +38,7 @@ impl RingWalker {
             self.stamp.iter_mut().for_each(|s| *s = 0);
             self.generation = 1;
         }
-        self.found.clear();
+        self.len = 0;
         self.ring_starts.clear();
         self.ring_starts.push(0);
         self.centre = centre as u32;
@@ -55,7 +59,7 @@ impl RingWalker {
     /// through an unexpanded vertex).
     pub fn grow_beam(&mut self, topo: &Topology, beam: usize) -> &[u32] {
         let g = self.generation;
-        let start = self.found.len();
+        let start = self.len;
         let mut end = start;
         let ring_count = self.ring_starts.len();
         let (frontier, take) = if ring_count == 1 {
@@ -83,11 +87,26 @@ impl RingWalker {
             }
             // Branch-free marking: whether a neighbour is new is close to a
             // coin toss, so a branch on it would mispredict half the time.
+            if self.found.len() < end + NEIGHBOR_BLOCK {
+                self.found.resize(2 * (end + NEIGHBOR_BLOCK), 0);
+            }
+            if let Some((block, n)) = topo.neighbor_block(u) {
+                // Every entry of the block, those past the list writing
+                // back the stamp they read (a vertex of this list seen in
+                // the block is already stamped: stamps are set in order).
+                for (k, &w) in block.iter().enumerate() {
+                    let stamp = &mut self.stamp[w as usize];
+                    let live = k < n;
+                    let fresh = live & (*stamp != g);
+                    *stamp = if live { g } else { *stamp };
+                    self.found[end] = w;
+                    end += usize::from(fresh);
+                }
+                continue;
+            }
             let nb = topo.neighbors(u);
             if self.found.len() < end + nb.len() {
-                // With room for a few more expansions: one resize a ring,
-                // not one per expanded vertex.
-                self.found.resize(end + nb.len() + 64, 0);
+                self.found.resize(2 * (end + nb.len()), 0);
             }
             for &w in nb {
                 let stamp = &mut self.stamp[w as usize];
@@ -97,9 +116,9 @@ impl RingWalker {
                 end += usize::from(fresh);
             }
         }
-        self.found.truncate(end);
-        self.ring_starts.push(self.found.len());
-        &self.found[start..]
+        self.len = end;
+        self.ring_starts.push(end);
+        &self.found[start..end]
     }
 
     /// Drops the last grown ring (used when growth is rejected). Its
@@ -107,14 +126,14 @@ impl RingWalker {
     pub fn discard_last(&mut self) {
         if self.ring_starts.len() > 1 {
             let s = self.ring_starts[self.ring_starts.len() - 2];
-            self.found.truncate(s);
+            self.len = s;
             self.ring_starts.pop();
         }
     }
 
     /// All vertices found so far (rings 1..=k), ring by ring.
     pub fn found(&self) -> &[u32] {
-        &self.found
+        &self.found[..self.len]
     }
 
     /// Number of complete rings walked.
@@ -135,7 +154,7 @@ impl RingWalker {
                 break;
             }
         }
-        &self.found
+        &self.found[..self.len]
     }
 }
 

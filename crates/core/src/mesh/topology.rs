@@ -23,10 +23,15 @@ pub enum VertexKind {
     Isolated,
 }
 
+/// Entries of a [`Topology::neighbor_block`].
+pub const NEIGHBOR_BLOCK: usize = 6;
+
 /// Vertex→vertex, vertex→face and edge→face adjacency of a mesh.
 #[derive(Debug, Clone)]
 pub struct Topology {
     vv_offsets: Vec<u32>,
+    /// Neighbour lists, followed by [`NEIGHBOR_BLOCK`] zeros so a block
+    /// read from any list's start stays inside ([`Topology::neighbor_block`]).
     vv: Vec<u32>,
     /// `edges[edge_offsets[v]..edge_offsets[v + 1]]` are the edges whose
     /// smaller end is `v` (sorted by the larger end).
@@ -130,6 +135,18 @@ impl Topology {
     #[inline]
     pub fn neighbors(&self, v: usize) -> &[u32] {
         &self.vv[self.vv_offsets[v] as usize..self.vv_offsets[v + 1] as usize]
+    }
+
+    /// Vertex `v`'s neighbours as the first `n` entries of a block of
+    /// [`NEIGHBOR_BLOCK`] (the rest belong to other vertices or are
+    /// padding), or `None` when it has more: a loop over a whole block has
+    /// a fixed trip count, where a loop over a short list of varying length
+    /// mispredicts its exit.
+    #[inline]
+    pub fn neighbor_block(&self, v: usize) -> Option<(&[u32; NEIGHBOR_BLOCK], usize)> {
+        let (a, b) = (self.vv_offsets[v] as usize, self.vv_offsets[v + 1] as usize);
+        let block = self.vv.get(a..a + NEIGHBOR_BLOCK)?.try_into().ok()?;
+        (b - a <= NEIGHBOR_BLOCK).then_some((block, b - a))
     }
 
     /// Edge ids of vertex `v`'s edges, in the order of
@@ -318,7 +335,7 @@ impl Topology {
         }
         prefix_sum(&mut vv_offsets);
         let mut fill = vv_offsets.clone();
-        let mut vv = vec![0u32; vv_offsets[n] as usize];
+        let mut vv = vec![0u32; vv_offsets[n] as usize + NEIGHBOR_BLOCK];
         // Entries where the vertex is `hi` come first (their `lo` is smaller).
         for e in &edges {
             let s = &mut fill[e[1] as usize];
@@ -475,6 +492,26 @@ pub(crate) mod tests {
             }
         }
         Mesh::from_polygons(p, &f).unwrap()
+    }
+
+    #[test]
+    fn neighbor_blocks_start_with_the_neighbours() {
+        // A fan of 9 triangles: the hub has 9 neighbours (no block), the
+        // rim vertices 3; the last rim vertex's block runs into the padding.
+        let mut p = vec![DVec3::ZERO];
+        let mut f = Vec::new();
+        for i in 0..9u32 {
+            let a = i as f64 * std::f64::consts::TAU / 9.0;
+            p.push(DVec3::new(a.cos(), a.sin(), 0.0));
+            f.push([0, i + 1, (i + 1) % 9 + 1]);
+        }
+        let m = Mesh::from_polygons(p, &f).unwrap();
+        let t = Topology::build(&m);
+        assert!(t.neighbor_block(0).is_none());
+        for v in 1..10 {
+            let (block, n) = t.neighbor_block(v).unwrap();
+            assert_eq!(&block[..n], t.neighbors(v), "vertex {v}");
+        }
     }
 
     #[test]
