@@ -24,13 +24,13 @@ pub enum VertexKind {
 }
 
 /// Entries of a [`Topology::neighbor_block`].
-pub const NEIGHBOR_BLOCK: usize = 6;
+pub(crate) const NEIGHBOR_BLOCK: usize = 6;
 
 /// Vertex→vertex, vertex→face and edge→face adjacency of a mesh.
 #[derive(Debug, Clone)]
 pub struct Topology {
     vv_offsets: Vec<u32>,
-    /// Neighbour lists, followed by [`NEIGHBOR_BLOCK`] zeros so a block
+    /// Neighbour lists, followed by `NEIGHBOR_BLOCK` zeros so a block
     /// read from any list's start stays inside ([`Topology::neighbor_block`]).
     vv: Vec<u32>,
     /// `edges[edge_offsets[v]..edge_offsets[v + 1]]` are the edges whose
@@ -137,13 +137,13 @@ impl Topology {
         &self.vv[self.vv_offsets[v] as usize..self.vv_offsets[v + 1] as usize]
     }
 
-    /// Vertex `v`'s neighbours as the first `n` entries of a block of
-    /// [`NEIGHBOR_BLOCK`] (the rest belong to other vertices or are
-    /// padding), or `None` when it has more: a loop over a whole block has
+    /// Vertex `v`'s neighbours as the first `n` entries of a block of 6
+    /// (the rest belong to other vertices or are padding), or `None` when
+    /// it has more: a loop over a whole block has
     /// a fixed trip count, where a loop over a short list of varying length
     /// mispredicts its exit.
     #[inline]
-    pub fn neighbor_block(&self, v: usize) -> Option<(&[u32; NEIGHBOR_BLOCK], usize)> {
+    pub(crate) fn neighbor_block(&self, v: usize) -> Option<(&[u32; NEIGHBOR_BLOCK], usize)> {
         let (a, b) = (self.vv_offsets[v] as usize, self.vv_offsets[v + 1] as usize);
         let block = self.vv.get(a..a + NEIGHBOR_BLOCK)?.try_into().ok()?;
         (b - a <= NEIGHBOR_BLOCK).then_some((block, b - a))

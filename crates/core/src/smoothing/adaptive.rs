@@ -9,7 +9,7 @@
 //! reaching the next ring would not bias the projection by more than a bound
 //! (`rho^4 kappa^3 / 48`, the gap between a paraboloid and a sphere), and
 //! (d) `k < k_max`. The chosen neighbourhood is then thinned to at most
-//! `max_points` well-spread vertices ([`push_thinned`]) so a fit's cost does
+//! `max_points` well-spread vertices ([`push_thinned`](super::neighbourhood::push_thinned)) so a fit's cost does
 //! not grow with `k`. Where growth is clear-cut (it reaches `k_max` with
 //! every test passed by a margin) a seed's outer rings serve its
 //! neighbours too ([`SHARED_FROM_RING`]), so the long walk is made once
@@ -28,7 +28,7 @@
 //! after [`flat_passes`] of the passes.
 
 use super::label::{Label, agrees};
-use super::neighbourhood::{Neighbourhoods, Thinning, pick_seeds, push_ring_sample, push_thinned};
+use super::neighbourhood::{Neighbourhoods, Thinning, pick_seeds, push_ring_sample};
 use crate::mesh::{RingWalker, Topology};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -41,7 +41,7 @@ use std::sync::atomic::{AtomicU8, Ordering};
 pub const BEAM_WIDTH: usize = 12;
 
 /// A grown neighbourhood keeps its inner rings whole only while they hold
-/// at most `max_points / WHOLE_INNER_DIVISOR` points ([`push_thinned`]);
+/// at most `max_points / WHOLE_INNER_DIVISOR` points ([`push_thinned`](super::neighbourhood::push_thinned));
 /// the rest of the budget samples the outer rings, so a large ring spreads
 /// its fit over the whole disc. Measured (`examples/accuracy.rs`, cubic
 /// fits of 60 points, 16 passes): 4 instead of 2 brings the voxel sphere
@@ -223,7 +223,8 @@ pub fn adaptive_neighbourhoods(
         let growth = grow(
             topo, v, w, positions, normals, labels, agreement, h_scaled, rule,
         );
-        let thinning = push_thinned(w, rule.max_points, whole_inner, out);
+        let thinning = Thinning::plan(w, rule.max_points, whole_inner);
+        thinning.push(w, out);
         (growth, thinning)
     };
     let own_rings = SHARED_FROM_RING - 1;
@@ -351,7 +352,7 @@ impl SeedChunk {
 }
 
 /// Walks vertex `v`'s first `rings` rings as growth does and appends them:
-/// its inner rings whole as [`push_thinned`] keeps them, the others thinned
+/// its inner rings whole as [`push_thinned`](super::neighbourhood::push_thinned) keeps them, the others thinned
 /// to the quotas of `thinning` (its seed's). False, with `out` partly
 /// written, when `v` keeps all `rings` whole or its component ends first.
 fn push_near_rings(
@@ -632,7 +633,7 @@ impl RingLanes {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::smoothing::neighbourhood::CHUNK;
+    use crate::smoothing::neighbourhood::{CHUNK, push_thinned};
 
     #[test]
     fn ring_statistics_match_a_plain_loop_over_the_candidates() {

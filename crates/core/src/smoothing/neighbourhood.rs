@@ -586,18 +586,22 @@ pub fn push_ring_sample(ring: &[u32], quota: usize, out: &mut Vec<u32>) {
 /// rings are kept whole while they total at most `whole_inner` points, and
 /// the remaining budget is shared among the outer rings in proportion to
 /// their sizes, each thinned by an even stride so the points stay spread
-/// around the vertex ([`Thinning`]). Returns the plan.
-pub fn push_thinned(
-    w: &RingWalker,
-    max_points: usize,
-    whole_inner: usize,
-    out: &mut Vec<u32>,
-) -> Thinning {
-    let plan = Thinning::plan(w, max_points, whole_inner);
-    for r in 1..=w.rings().min(MAX_RINGS) {
-        push_ring_sample(w.ring(r), usize::from(plan.quota[r]), out);
+/// around the vertex ([`Thinning`]).
+pub fn push_thinned(w: &RingWalker, max_points: usize, whole_inner: usize, out: &mut Vec<u32>) {
+    if w.found().len() <= max_points {
+        out.extend_from_slice(w.found());
+    } else {
+        Thinning::plan(w, max_points, whole_inner).push(w, out);
     }
-    plan
+}
+
+impl Thinning {
+    /// Appends the walker's rings, thinned by this plan (made for them).
+    pub fn push(&self, w: &RingWalker, out: &mut Vec<u32>) {
+        for r in 1..=w.rings().min(MAX_RINGS) {
+            push_ring_sample(w.ring(r), usize::from(self.quota[r]), out);
+        }
+    }
 }
 
 #[cfg(test)]
