@@ -10,7 +10,7 @@
 use super::curvature::curvature_at;
 use super::frame::Frame;
 use super::neighbourhood::{CHUNK, ChunkWeights, HoodSource, NeighbourWeights, Neighbourhoods};
-use super::normals::{vertex_normal, vertex_normals_f32};
+use super::normals::{face_vector_areas_f32, normal_from_areas, vertex_normal, vertex_normals_f32};
 use super::quadric_fit::{
     Facing, FitHeight, FitKind, FitModel, fit_neighbours, fit_neighbours_weighted,
 };
@@ -184,9 +184,8 @@ pub fn fit_pass(
                     if movable[v] {
                         w.get_f32_into(v, &mut slot_weights);
                         let (m, d) = reused_move(
-                            mesh,
-                            topo,
                             positions,
+                            vertex_normal(mesh, topo, positions, v),
                             w.hoods(),
                             &slot_weights,
                             limits[v],
@@ -303,6 +302,7 @@ pub fn weighted_pass(
     out: &mut [Vec3],
     momentum: Option<Momentum>,
 ) -> FitStats {
+    let areas = face_vector_areas_f32(mesh, positions);
     out.par_chunks_mut(CHUNK)
         .zip(drift.par_chunks_mut(CHUNK))
         .enumerate()
@@ -316,8 +316,8 @@ pub fn weighted_pass(
                     continue;
                 }
                 weights.get_f32_into(hoods, v, &mut w);
-                let (m, d) =
-                    reused_move(mesh, topo, positions, hoods, &w, limits[v], v, &mut stats);
+                let n = normal_from_areas(topo, &areas, v);
+                let (m, d) = reused_move(positions, n, hoods, &w, limits[v], v, &mut stats);
                 (*o, *drift) = with_momentum(momentum, v, m, prev, *drift, d);
             }
             stats
@@ -348,15 +348,14 @@ fn with_momentum(
 }
 
 /// Vertex `v`'s move by its stored fit weights `w` (laid out by unit,
-/// [`NeighbourWeights::get_f32_into`]) along its current normal, and the
+/// [`NeighbourWeights::get_f32_into`]) along its current unit normal `n`, and the
 /// drift it adds ([`UNFITTED_DRIFT`]): its length, or infinity when it is cut to
 /// zero beyond `limit` (counted as clamped, [`weighted_pass`]).
 #[allow(clippy::too_many_arguments)]
 #[inline]
 fn reused_move(
-    mesh: &Mesh,
-    topo: &Topology,
     positions: &[DVec3],
+    n: DVec3,
     hoods: &Neighbourhoods,
     w: &[f32],
     limit: f32,
@@ -364,7 +363,6 @@ fn reused_move(
     stats: &mut FitStats,
 ) -> (Vec3, f32) {
     let p = positions[v];
-    let n = vertex_normal(mesh, topo, positions, v);
     let mut d = DVec3::ZERO;
     for (unit, j) in hoods.entries(v) {
         let a = w.get(unit).copied().unwrap_or(0.0);
