@@ -274,22 +274,26 @@ pub fn adaptive_neighbourhoods(
 /// room to spare ([`ROBUST_SLACK`]), so the vertex's own growth would very
 /// likely have reached `k_max` too. The seeds cover every vertex within
 /// one edge and are about 30% of the vertices of a voxel sphere; on the
-/// benchmark sphere of 228k vertices 57% share, and the label stage takes
-/// 716 instead of 957 ms on one thread. Measured (`examples/accuracy.rs`,
-/// RMS on the voxel sphere r=12, torus, ellipsoid, sphere r=40): growing
-/// every vertex 0.0332, 0.0431, 0.0402, 0.0201; sharing from ring 6
-/// 0.0332, 0.0431, 0.0406, 0.0202 (from ring 8: 0.0406, 0.0201 on the
-/// last two). Sharing with every seed that grew to 8 rings regardless of
-/// its margins takes the ellipsoid to 0.0416 (the growth decisions there
-/// are close calls); seeds two edges away take sphere r=40 to 0.0205.
-pub const SHARED_FROM_RING: usize = 6;
+/// benchmark sphere of 228k vertices about 60% share. Measured
+/// (`examples/accuracy.rs`, RMS on the voxel sphere r=12, torus,
+/// ellipsoid, sphere r=40): growing every vertex 0.0332, 0.0431, 0.0402,
+/// 0.0201; sharing from ring 6 (slack 0.5) 0.0332, 0.0431, 0.0406,
+/// 0.0203; from ring 5 (slack 0.3) 0.0332, 0.0431, 0.0404, 0.0203; from
+/// ring 4 the same within 0.0001. On one thread the label stage took 957
+/// ms growing every vertex, about 600 sharing from ring 6 and 565 from
+/// ring 5 (after faster ring walks). Sharing with every seed that grew to
+/// 8 rings regardless of its margins takes the ellipsoid to 0.0416 (the
+/// growth decisions there are close calls); seeds two edges away take
+/// sphere r=40 to 0.0212.
+pub const SHARED_FROM_RING: usize = 5;
 
 /// A seed's growth is shared ([`SHARED_FROM_RING`]) only when every ring
 /// it accepted passed each test of [`GrowthRule`] within `1 - ROBUST_SLACK`
 /// of its bound (label disagreement, bias, the rise and the bound of the
-/// curvature spread). Measured as above: 0.3 and 0.6 give the ellipsoid
-/// 0.0405 and 0.0404 and share 61% and 53% of the benchmark sphere.
-pub const ROBUST_SLACK: f64 = 0.5;
+/// curvature spread). Measured as above, sharing from ring 6: slack 0.3,
+/// 0.5 and 0.6 give the ellipsoid 0.0405, 0.0406 and 0.0404 and share 61%,
+/// 57% and 53% of the benchmark sphere.
+pub const ROBUST_SLACK: f64 = 0.3;
 
 /// What a seed's growth left in its [`SeedChunk`].
 #[derive(Clone)]
