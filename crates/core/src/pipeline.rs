@@ -17,7 +17,7 @@ use crate::smoothing::adaptive::{
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
 use crate::smoothing::initial::{EarlyStop, initial_passes, smooth_passes};
 use crate::smoothing::label::{Label, label};
-use crate::smoothing::normals::vertex_normals_f32;
+use crate::smoothing::normals::vertex_normals_f32_by_faces;
 use crate::smoothing::project::FitStats;
 use crate::smoothing::quadric_fit::FitModel;
 use crate::smoothing::volume::restore_volume;
@@ -225,7 +225,7 @@ pub fn wang_yu(
     check(cancel)?;
     // The curvature rings are used once: walked and fitted vertex by
     // vertex, never stored (as lists they would be the run's peak memory).
-    let facing_normals = vertex_normals_f32(mesh, topo, &positions);
+    let facing_normals = vertex_normals_f32_by_faces(mesh, topo, &positions);
     let hk = vertex_curvatures(
         topo,
         &positions,
@@ -344,7 +344,7 @@ fn stage_curvature(
     positions: &[DVec3],
     params: &Params,
 ) -> Curvatures {
-    let normals = vertex_normals_f32(mesh, topo, positions);
+    let normals = vertex_normals_f32_by_faces(mesh, topo, positions);
     vertex_curvatures(
         topo,
         positions,

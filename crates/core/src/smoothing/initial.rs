@@ -3,7 +3,7 @@
 
 use super::curvature::{Curvatures, vertex_curvatures};
 use super::neighbourhood::{HoodSource, Neighbourhoods};
-use super::normals::vertex_normals_f32;
+use super::normals::vertex_normals_f32_by_faces;
 use super::project::{
     FitStats, Momentum, Refit, UNFITTED_DRIFT, fit_pass, step_limits, weighted_pass,
 };
@@ -163,7 +163,7 @@ pub fn initial_passes(
     let mut stats = FitStats::default();
     let mut curvature = Vec::new();
     if passes == 0 {
-        let normals = vertex_normals_f32(mesh, topo, positions);
+        let normals = vertex_normals_f32_by_faces(mesh, topo, positions);
         curvature = vertex_curvatures(topo, positions, &normals, 2, max_points, min_cos);
     }
     for pass in 0..passes {
@@ -426,7 +426,7 @@ mod tests {
             .map(|v| topo.kind(v) == crate::mesh::VertexKind::Interior)
             .collect();
         movable[40] = false;
-        let normals = vertex_normals_f32(&mesh, &topo, mesh.positions());
+        let normals = vertex_normals_f32_by_faces(&mesh, &topo, mesh.positions());
         let expected = vertex_curvatures(&topo, mesh.positions(), &normals, 2, 56, 0.5);
         let never = AtomicBool::new(false);
         for passes in [0, 2] {

@@ -31,6 +31,19 @@ pub fn vertex_normals_f32(mesh: &Mesh, topo: &Topology, positions: &[DVec3]) -> 
         .collect()
 }
 
+/// [`vertex_normals_f32`] from the faces' vector areas computed once each
+/// ([`face_vector_areas_f32`], [`normal_from_areas`]): about half the
+/// work, for 12 bytes a face held while the normals are summed (so not
+/// where a run's memory peaks, in the adaptive passes).
+pub fn vertex_normals_f32_by_faces(mesh: &Mesh, topo: &Topology, positions: &[DVec3]) -> Vec<Vec3> {
+    let areas = face_vector_areas_f32(mesh, positions);
+    (0..topo.num_vertices())
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|v| normal_from_areas(topo, &areas, v).as_vec3())
+        .collect()
+}
+
 /// Every face's vector area ([`vector_area`]) in single precision, one
 /// entry per face: for passes that need every vertex's normal once, where
 /// computing each face once instead of at each of its corners halves the
@@ -85,5 +98,34 @@ mod tests {
         let n = vertex_normals(&m, &t, m.positions());
         assert!((n[0] - DVec3::Z).length() < 1e-12);
         assert!((n[1].length() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn normals_from_face_areas_match_the_per_corner_sums() {
+        // A bumped grid of quads with one pentagon and a triangle fan.
+        let mut p: Vec<DVec3> = (0..36)
+            .map(|i| {
+                let (x, y) = ((i % 6) as f64, (i / 6) as f64);
+                DVec3::new(x, y, 0.3 * (1.3 * x).sin() * (0.7 * y).cos())
+            })
+            .collect();
+        p.push(DVec3::new(2.5, 6.5, 0.2));
+        let mut faces: Vec<Vec<u32>> = Vec::new();
+        for y in 0..5u32 {
+            for x in 0..5u32 {
+                let a = y * 6 + x;
+                faces.push(vec![a, a + 1, a + 7, a + 6]);
+            }
+        }
+        faces.push(vec![30, 31, 32, 36, 33].into_iter().rev().collect());
+        faces.push(vec![33, 36, 34]);
+        let m = Mesh::from_polygons(p, &faces).unwrap();
+        let t = Topology::build(&m);
+        let plain = vertex_normals_f32(&m, &t, m.positions());
+        let by_faces = vertex_normals_f32_by_faces(&m, &t, m.positions());
+        for (v, (a, b)) in plain.iter().zip(&by_faces).enumerate() {
+            assert!((*a - *b).length() < 1e-6, "vertex {v}: {a} vs {b}");
+            assert!((a.length() - 1.0).abs() < 1e-6);
+        }
     }
 }

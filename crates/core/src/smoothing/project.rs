@@ -10,7 +10,10 @@
 use super::curvature::curvature_at;
 use super::frame::Frame;
 use super::neighbourhood::{CHUNK, ChunkWeights, HoodSource, NeighbourWeights, Neighbourhoods};
-use super::normals::{face_vector_areas_f32, normal_from_areas, vertex_normal, vertex_normals_f32};
+use super::normals::{
+    face_vector_areas_f32, normal_from_areas, vertex_normal, vertex_normals_f32,
+    vertex_normals_f32_by_faces,
+};
 use super::quadric_fit::{
     Facing, FitHeight, FitKind, FitModel, fit_neighbours, fit_neighbours_weighted,
 };
@@ -145,7 +148,12 @@ pub fn fit_pass(
         HoodSource::Stored(h) if curvature.is_none() => Some(h),
         _ => None,
     };
-    let normals = vertex_normals_f32(mesh, topo, positions);
+    // Passes over stored lists are the adaptive ones, where the run's
+    // memory peaks: no face areas there.
+    let normals = match hoods {
+        HoodSource::Stored(_) => vertex_normals_f32(mesh, topo, positions),
+        HoodSource::Walked { .. } => vertex_normals_f32_by_faces(mesh, topo, positions),
+    };
     let chunks = out.len().div_ceil(CHUNK);
     let curvature: Vec<Option<&mut [(f64, f64)]>> = match curvature {
         Some(c) => c.chunks_mut(CHUNK).map(Some).collect(),
