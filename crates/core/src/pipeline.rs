@@ -17,6 +17,7 @@ use crate::smoothing::adaptive::{
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
 use crate::smoothing::initial::{EarlyStop, initial_passes, smooth_passes};
 use crate::smoothing::label::{Label, label};
+use crate::smoothing::neighbourhood::release_walk_scratch;
 use crate::smoothing::normals::vertex_normals_f32_by_faces;
 use crate::smoothing::project::FitStats;
 use crate::smoothing::quadric_fit::FitModel;
@@ -267,6 +268,7 @@ pub fn wang_yu(
     );
     // Free what growth needed before the passes allocate theirs.
     drop((h_scaled, facing_normals, agreement));
+    release_walk_scratch();
     timings_ms.push((Stage::Label, ms(t)));
     progress.update(Stage::Label, 1.0);
 

@@ -234,6 +234,18 @@ thread_local! {
     static UNITS: RefCell<Vec<u16>> = const { RefCell::new(Vec::new()) };
 }
 
+/// Frees the scratch every thread of the pool keeps for walking rings (a
+/// 4-byte stamp per mesh vertex per thread, and the last chunk's lists):
+/// before the adaptive passes, where a run's memory peaks and no ring is
+/// walked. The next walk allocates it again.
+pub fn release_walk_scratch() {
+    rayon::broadcast(|_| {
+        WALKER.with(|w| *w.borrow_mut() = RingWalker::default());
+        LIST.with(|l| *l.borrow_mut() = Vec::new());
+        UNITS.with(|u| *u.borrow_mut() = Vec::new());
+    });
+}
+
 /// Vertices per chunk of stored lists (and per parallel work item when
 /// building them).
 pub const CHUNK: usize = 1024;
