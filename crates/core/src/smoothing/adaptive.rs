@@ -233,12 +233,27 @@ pub fn adaptive_neighbourhoods(
         |range, w| SeedChunk::grow(topo, range, w, &grow_and_thin),
         |chunk, v, w, out| {
             let s = chunk.seed[v - chunk.first] as usize;
+            // The seed to share: its own, or else another seed next to it,
+            // whose growth was clear-cut and which carries its label.
+            let shares = |s: usize| {
+                chunk.seed[s] as usize == s
+                    && chunk.grown[s].growth.robust
+                    && labels[v] == labels[chunk.first + s]
+            };
+            let s = if s + chunk.first == v || shares(s) {
+                s
+            } else {
+                topo.neighbors(v)
+                    .iter()
+                    .filter_map(|&j| (j as usize).checked_sub(chunk.first))
+                    .find(|&l| l < chunk.seed.len() && shares(l))
+                    .unwrap_or(s)
+            };
             let seed = &chunk.grown[s];
             let rings = if s + chunk.first == v {
                 out.extend_from_slice(&chunk.lists[seed.list.clone()]);
                 seed.growth.rings
-            } else if seed.growth.robust
-                && labels[v] == labels[chunk.first + s]
+            } else if shares(s)
                 && push_near_rings(topo, v, w, own_rings, whole_inner, &seed.thinning, out)
             {
                 let near: usize = seed.thinning.quota[..=own_rings]
@@ -269,10 +284,10 @@ pub fn adaptive_neighbourhoods(
 /// this one and takes the seed's thinned samples from this ring out
 /// ([`adaptive_neighbourhoods`]): the fit's near points, which weigh most,
 /// stay centred on the vertex, and the long walk out to `k_max` rings is
-/// made once per seed. A vertex shares when its seed is a neighbour with
-/// its label whose growth reached `k_max` with every test passed with
-/// room to spare ([`ROBUST_SLACK`]), so the vertex's own growth would very
-/// likely have reached `k_max` too. The seeds cover every vertex within
+/// made once per seed. A vertex shares when its seed (or, failing that,
+/// another seed next to it) carries its label and grew to `k_max` with
+/// every test passed with room to spare ([`ROBUST_SLACK`]), so the
+/// vertex's own growth would very likely have reached `k_max` too. The seeds cover every vertex within
 /// one edge and are about 30% of the vertices of a voxel sphere; on the
 /// benchmark sphere of 228k vertices about 60% share. Measured
 /// (`examples/accuracy.rs`, RMS on the voxel sphere r=12, torus,
