@@ -318,47 +318,61 @@ impl Neighbourhoods {
     where
         F: Fn(usize, &mut RingWalker, &mut Vec<u32>) + Sync,
     {
-        Neighbourhoods::build_chunked(topo, |_, _| (), |(), v, w, out| select(v, w, out))
+        Neighbourhoods::build_chunked(topo, 1, |_, _| (), |(), v, w, out| select(v, w, out))
     }
 
-    /// Like [`Neighbourhoods::build`], with per-chunk state: `prepare(range,
-    /// walker)` runs first for each chunk of [`CHUNK`] vertices (`range`),
-    /// then `select(&state, v, walker, out)` for each of its vertices in
-    /// order. `select` may append an entry more than once. The chunks are
-    /// fixed, so the result does not depend on the thread count.
-    pub fn build_chunked<S, P, F>(topo: &Topology, prepare: P, select: F) -> Neighbourhoods
+    /// Like [`Neighbourhoods::build`], with state per group of `group`
+    /// chunks of [`CHUNK`] vertices: `prepare(range, walker)` runs first for
+    /// each group (`range`), then `select(&state, v, walker, out)` for each
+    /// of its vertices in order. `select` may append an entry more than
+    /// once. The groups are fixed, so the result does not depend on the
+    /// thread count.
+    pub fn build_chunked<S, P, F>(
+        topo: &Topology,
+        group: usize,
+        prepare: P,
+        select: F,
+    ) -> Neighbourhoods
     where
         P: Fn(Range<usize>, &mut RingWalker) -> S + Sync,
         F: Fn(&S, usize, &mut RingWalker, &mut Vec<u32>) + Sync,
     {
         let n = topo.num_vertices();
-        let built: Vec<(Vec<u32>, Vec<u16>)> = (0..n.div_ceil(CHUNK))
+        let span = group.max(1) * CHUNK;
+        let built: Vec<(Vec<u32>, Vec<u16>)> = (0..n.div_ceil(span))
             .into_par_iter()
-            .map(|c| {
-                let range = c * CHUNK..((c + 1) * CHUNK).min(n);
-                let mut starts = Vec::with_capacity(range.len());
-                // Built in reused thread-local lists and copied out at its
-                // exact size: no growing and shrinking of a list per chunk.
-                let units = WALKER.with(|w| {
+            .flat_map_iter(|g| {
+                let range = g * span..((g + 1) * span).min(n);
+                // Built in reused thread-local lists and copied out at each
+                // chunk's exact size: no growing and shrinking of a list per
+                // chunk.
+                WALKER.with(|w| {
                     LIST.with(|list| {
                         UNITS.with(|units| {
                             let (mut w, mut list, mut units) =
                                 (w.borrow_mut(), list.borrow_mut(), units.borrow_mut());
-                            units.clear();
                             let state = prepare(range.clone(), &mut w);
-                            for v in range {
-                                starts.push(units.len() as u32);
-                                list.clear();
-                                select(&state, v, &mut w, &mut list);
-                                sort_short(&mut list);
-                                list.dedup();
-                                encode(&list, &mut units);
-                            }
-                            units.to_vec()
+                            range
+                                .clone()
+                                .step_by(CHUNK)
+                                .map(|first| {
+                                    let chunk = first..(first + CHUNK).min(range.end);
+                                    let mut starts = Vec::with_capacity(chunk.len());
+                                    units.clear();
+                                    for v in chunk {
+                                        starts.push(units.len() as u32);
+                                        list.clear();
+                                        select(&state, v, &mut w, &mut list);
+                                        sort_short(&mut list);
+                                        list.dedup();
+                                        encode(&list, &mut units);
+                                    }
+                                    (starts, units.to_vec())
+                                })
+                                .collect::<Vec<_>>()
                         })
                     })
-                });
-                (starts, units)
+                })
             })
             .collect();
         let mut offsets = Vec::with_capacity(n + 1);
@@ -409,7 +423,8 @@ impl Neighbourhoods {
     }
 }
 
-/// Seeds for the vertices of `range` (a chunk of [`CHUNK`]): for each, the
+/// Seeds for the vertices of `range` (a group of chunks,
+/// [`Neighbourhoods::build_chunked`]): for each, the
 /// index in `range` of its seed, itself or a neighbour in `range`, so every
 /// vertex is at most one edge from its seed. In vertex order, each vertex
 /// not yet next to a seed makes a seed of whichever of itself and its
