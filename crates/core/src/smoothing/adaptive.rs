@@ -205,8 +205,8 @@ pub fn agreement_masks(curvature: &[(f64, f64)], rule: &GrowthRule) -> Vec<u8> {
 /// `agreement` ([`agreement_masks`]), `h_scaled` (`H l`) and unit `normals`
 /// have one entry per vertex, all from `positions`.
 ///
-/// Seeds grow by the rule; a vertex next to a seed whose growth passed
-/// every test with room to spare shares its outer rings
+/// Seeds ([`pick_seeds`]) grow by the rule; a vertex next to a seed whose
+/// growth passed every test with room to spare shares its outer rings
 /// ([`SHARED_FROM_RING`], [`ROBUST_SLACK`]); the others grow themselves.
 pub fn adaptive_neighbourhoods(
     topo: &Topology,
@@ -232,27 +232,27 @@ pub fn adaptive_neighbourhoods(
         topo,
         SEED_GROUP,
         |range, w| SeedGroup::grow(topo, range, w, &grow_and_thin),
-        |chunk, v, w, out| {
-            let s = chunk.seed[v - chunk.first] as usize;
+        |group, v, w, out| {
+            let s = group.seed[v - group.first] as usize;
             // The seed to share: its own, or else another seed next to it,
             // whose growth was clear-cut and which carries its label.
             let shares = |s: usize| {
-                chunk.seed[s] as usize == s
-                    && chunk.grown[s].growth.robust
-                    && labels[v] == labels[chunk.first + s]
+                group.seed[s] as usize == s
+                    && group.grown[s].growth.robust
+                    && labels[v] == labels[group.first + s]
             };
-            let s = if s + chunk.first == v || shares(s) {
+            let s = if s + group.first == v || shares(s) {
                 s
             } else {
                 topo.neighbors(v)
                     .iter()
-                    .filter_map(|&j| (j as usize).checked_sub(chunk.first))
-                    .find(|&l| l < chunk.seed.len() && shares(l))
+                    .filter_map(|&j| (j as usize).checked_sub(group.first))
+                    .find(|&l| l < group.seed.len() && shares(l))
                     .unwrap_or(s)
             };
-            let seed = &chunk.grown[s];
-            let rings = if s + chunk.first == v {
-                out.extend_from_slice(&chunk.lists[seed.list.clone()]);
+            let seed = &group.grown[s];
+            let rings = if s + group.first == v {
+                out.extend_from_slice(&group.lists[seed.list.clone()]);
                 seed.growth.rings
             } else if shares(s)
                 && push_near_rings(topo, v, w, own_rings, whole_inner, &seed.thinning, out)
@@ -264,7 +264,7 @@ pub fn adaptive_neighbourhoods(
                 // The vertex is in its seed's first ring, never in these;
                 // its own rings may hold a point or two more than the
                 // seed's, which the outer samples make room for.
-                let outer = &chunk.lists[seed.list.start + near..seed.list.end];
+                let outer = &group.lists[seed.list.start + near..seed.list.end];
                 let room = rule.max_points.saturating_sub(out.len());
                 push_ring_sample(outer, room, out);
                 seed.growth.rings
@@ -288,14 +288,16 @@ pub fn adaptive_neighbourhoods(
 /// made once per seed. A vertex shares when its seed (or, failing that,
 /// another seed next to it) carries its label and grew to `k_max` with
 /// every test passed with room to spare ([`ROBUST_SLACK`]), so the
-/// vertex's own growth would very likely have reached `k_max` too. The seeds cover every vertex within
-/// one edge and are about 30% of the vertices of a voxel sphere; on the
-/// benchmark sphere of 228k vertices about 60% share. Measured
-/// (`examples/accuracy.rs`, RMS on the voxel sphere r=12, torus,
+/// vertex's own growth would very likely have reached `k_max` too. The
+/// seeds cover every vertex within one edge and are about a quarter of the
+/// vertices of a voxel sphere ([`SEED_GROUP`]); on the benchmark sphere of
+/// 228k vertices about 65% of the vertices share and 4% grow themselves.
+/// Measured (`examples/accuracy.rs`, RMS on the voxel sphere r=12, torus,
 /// ellipsoid, sphere r=40): growing every vertex 0.0332, 0.0431, 0.0402,
 /// 0.0201; sharing from ring 6 (slack 0.5) 0.0332, 0.0431, 0.0406,
 /// 0.0203; from ring 5 (slack 0.3) 0.0332, 0.0431, 0.0404, 0.0203; from
-/// ring 4 the same within 0.0001. On one thread the label stage took 957
+/// ring 4 the same within 0.0001; with the seed groups and the second
+/// seed, 0.0332, 0.0431, 0.0406, 0.0202. On one thread the label stage took 957
 /// ms growing every vertex, about 600 sharing from ring 6 and 565 from
 /// ring 5 (after faster ring walks). Sharing with every seed that grew to
 /// 8 rings regardless of its margins takes the ellipsoid to 0.0416 (the
