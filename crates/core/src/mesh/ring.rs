@@ -136,6 +136,11 @@ impl RingWalker {
         &self.found[..self.len]
     }
 
+    /// How many vertices rings `1..=r` hold.
+    pub fn found_in(&self, r: usize) -> usize {
+        self.ring_starts[r]
+    }
+
     /// Number of complete rings walked.
     pub fn rings(&self) -> usize {
         self.ring_starts.len() - 1

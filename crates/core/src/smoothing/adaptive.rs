@@ -28,7 +28,9 @@
 //! after [`flat_passes`] of the passes.
 
 use super::label::{Label, agrees};
-use super::neighbourhood::{Neighbourhoods, Thinning, pick_seeds, push_ring_sample};
+use super::neighbourhood::{
+    Neighbourhoods, Thinning, pick_seeds, push_ring_sample, whole_inner_rings,
+};
 use crate::mesh::{RingWalker, Topology};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -404,11 +406,7 @@ fn push_near_rings(
             return false;
         }
     }
-    let (mut kept_rings, mut kept) = (0, 0);
-    while kept_rings < rings && kept + w.ring(kept_rings + 1).len() <= whole_inner {
-        kept += w.ring(kept_rings + 1).len();
-        kept_rings += 1;
-    }
+    let kept_rings = whole_inner_rings(w, rings, whole_inner);
     if kept_rings == rings {
         return false;
     }

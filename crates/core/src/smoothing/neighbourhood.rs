@@ -424,12 +424,12 @@ impl Neighbourhoods {
 }
 
 /// Seeds for the vertices of `range` (a group of chunks,
-/// [`Neighbourhoods::build_chunked`]): for each, the
-/// index in `range` of its seed, itself or a neighbour in `range`, so every
-/// vertex is at most one edge from its seed. In vertex order, each vertex
-/// not yet next to a seed makes a seed of whichever of itself and its
-/// neighbours in `range` is next to the most vertices without one (the
-/// last on ties): on a voxel sphere about 30% of the vertices are seeds.
+/// [`Neighbourhoods::build_chunked`]): for each, the index in `range` of
+/// its seed, itself or a neighbour in `range`, so every vertex is at most
+/// one edge from its seed. In vertex order, each vertex not yet next to a
+/// seed makes a seed of whichever of itself and its neighbours in `range`
+/// is next to the most vertices without one (the last on ties): on a voxel
+/// sphere about a quarter of the vertices are seeds with ranges of 4096.
 pub fn pick_seeds(topo: &Topology, range: Range<usize>) -> Vec<u32> {
     const NONE: u32 = u32::MAX;
     let first = range.start;
@@ -520,16 +520,12 @@ pub fn select_rings(
     push_thinned(w, max_points, max_points / 2, out);
 }
 
-/// How [`push_thinned`] thins a walk: its first `kept_rings` rings whole
-/// (`kept` points), then `quota[r]` points of each later ring `r`.
+/// How [`push_thinned`] thins a walk: `quota[r]` points of ring `r`
+/// (1-based), its inner rings whole ([`whole_inner_rings`]).
 #[derive(Debug, Clone, Copy)]
 pub struct Thinning {
-    /// Inner rings kept whole.
-    pub kept_rings: usize,
-    /// Points in them.
-    pub kept: usize,
-    /// Points taken from ring `r` (1-based), for `r > kept_rings`; every
-    /// point of every ring when the walk holds at most `max_points`.
+    /// Points taken from each ring; every point of every ring when the
+    /// walk holds at most `max_points`.
     pub quota: [u16; MAX_RINGS + 1],
 }
 
@@ -539,40 +535,43 @@ pub const MAX_RINGS: usize = 32;
 impl Default for Thinning {
     fn default() -> Self {
         Thinning {
-            kept_rings: 0,
-            kept: 0,
             quota: [0; MAX_RINGS + 1],
         }
     }
 }
 
+/// How many of the walker's first `rings` rings, from the inside, total at
+/// most `whole_inner` points: the rings a thinning keeps whole.
+pub fn whole_inner_rings(w: &RingWalker, rings: usize, whole_inner: usize) -> usize {
+    let (mut kept_rings, mut kept) = (0, 0);
+    while kept_rings < rings && kept + w.ring(kept_rings + 1).len() <= whole_inner {
+        kept += w.ring(kept_rings + 1).len();
+        kept_rings += 1;
+    }
+    kept_rings
+}
+
 impl Thinning {
     /// The thinning of `w`'s rings to at most `max_points` points, inner
     /// rings kept whole while they total at most `whole_inner`, the rest of
-    /// the budget shared among the outer rings in proportion to their sizes.
+    /// the budget shared among the outer rings in proportion to their sizes
+    /// (quotas of at most `max_points`).
     pub fn plan(w: &RingWalker, max_points: usize, whole_inner: usize) -> Thinning {
         let rings = w.rings().min(MAX_RINGS);
-        let mut kept_rings = 0;
-        let mut kept = 0;
-        while kept_rings < rings && kept + w.ring(kept_rings + 1).len() <= whole_inner {
-            kept += w.ring(kept_rings + 1).len();
-            kept_rings += 1;
-        }
+        let all = w.found().len();
+        let kept_rings = if all <= max_points {
+            rings
+        } else {
+            whole_inner_rings(w, rings, whole_inner)
+        };
         let mut quota = [0u16; MAX_RINGS + 1];
         for (r, q) in quota.iter_mut().enumerate().take(kept_rings + 1).skip(1) {
             *q = w.ring(r).len() as u16;
         }
-        let all = w.found().len();
-        if all <= max_points {
-            for (r, q) in quota.iter_mut().enumerate().take(rings + 1).skip(1) {
-                *q = w.ring(r).len() as u16;
-            }
-            return Thinning {
-                kept_rings,
-                kept,
-                quota,
-            };
+        if kept_rings == rings {
+            return Thinning { quota };
         }
+        let kept = w.found_in(kept_rings);
         let (rest, budget) = (all - kept, max_points - kept);
         let mut taken = 0usize;
         let mut seen = 0usize;
@@ -587,11 +586,7 @@ impl Thinning {
             taken += share;
             *q = share as u16;
         }
-        Thinning {
-            kept_rings,
-            kept,
-            quota,
-        }
+        Thinning { quota }
     }
 }
 
