@@ -102,7 +102,7 @@ mod tests {
 
     #[test]
     fn normals_from_face_areas_match_the_per_corner_sums() {
-        // A bumped grid of quads with one pentagon and a triangle fan.
+        // A bumped grid of quads with a pentagon and a triangle on top.
         let mut p: Vec<DVec3> = (0..36)
             .map(|i| {
                 let (x, y) = ((i % 6) as f64, (i / 6) as f64);
