@@ -235,28 +235,33 @@ pub fn adaptive_neighbourhoods(
         SEED_GROUP,
         |range, w| SeedGroup::grow(topo, range, w, &grow_and_thin),
         |group, v, w, out| {
-            let s = group.seed[v - group.first] as usize;
-            // The seed to share: its own, or else another seed next to it,
-            // whose growth was clear-cut and which carries its label.
+            let i = v - group.first;
+            // A seed whose growth was clear-cut and which carries `v`'s
+            // label: `v`'s own seed, or else another seed next to it.
             let shares = |s: usize| {
                 group.seed[s] as usize == s
                     && group.grown[s].growth.robust
                     && labels[v] == labels[group.first + s]
             };
-            let s = if s + group.first == v || shares(s) {
-                s
+            let own = group.seed[i] as usize;
+            let next = topo.neighbors(v).iter().filter_map(|&j| {
+                (j as usize)
+                    .checked_sub(group.first)
+                    .filter(|&l| l < group.seed.len())
+            });
+            let shared = if own == i {
+                None
             } else {
-                topo.neighbors(v)
-                    .iter()
-                    .filter_map(|&j| (j as usize).checked_sub(group.first))
-                    .find(|&l| l < group.seed.len() && shares(l))
-                    .unwrap_or(s)
+                std::iter::once(own)
+                    .chain(next)
+                    .find(|&s| shares(s))
+                    .map(|s| &group.grown[s])
             };
-            let seed = &group.grown[s];
-            let rings = if s + group.first == v {
+            let rings = if own == i {
+                let seed = &group.grown[i];
                 out.extend_from_slice(&group.lists[seed.list.clone()]);
                 seed.growth.rings
-            } else if shares(s)
+            } else if let Some(seed) = shared
                 && push_near_rings(topo, v, w, own_rings, whole_inner, &seed.thinning, out)
             {
                 let near: usize = seed.thinning.quota[..=own_rings]
