@@ -261,27 +261,35 @@ pub fn mean_edge_length(mesh: &Mesh, positions: &[DVec3]) -> f64 {
 /// Signed enclosed volume of `mesh` with alternative `positions` (fan
 /// triangulation of each face, divergence theorem).
 pub fn signed_volume(mesh: &Mesh, positions: &[DVec3]) -> f64 {
-    use rayon::prelude::*;
-    // Fixed chunks summed in order: the same bits whatever the thread count.
-    const CHUNK: usize = 4096;
-    let n = mesh.num_faces();
-    let chunks: Vec<f64> = (0..n.div_ceil(CHUNK))
-        .into_par_iter()
-        .map(|c| {
-            let mut v = 0.0;
-            for f in c * CHUNK..((c + 1) * CHUNK).min(n) {
-                let face = mesh.face(f);
-                let o = positions[face[0] as usize];
-                for j in 1..face.len() - 1 {
-                    let a = positions[face[j] as usize];
-                    let b = positions[face[j + 1] as usize];
-                    v += o.dot(a.cross(b));
-                }
+    sum_over_face_chunks(mesh.num_faces(), |faces| {
+        let mut v = 0.0;
+        for f in faces {
+            let face = mesh.face(f);
+            let o = positions[face[0] as usize];
+            for j in 1..face.len() - 1 {
+                let a = positions[face[j] as usize];
+                let b = positions[face[j + 1] as usize];
+                v += o.dot(a.cross(b));
             }
-            v
-        })
+        }
+        v
+    }) / 6.0
+}
+
+/// `chunk_sum` over faces `0..num_faces` in fixed chunks of 4096, in
+/// parallel, the chunks' sums added in order: the same bits whatever the
+/// thread count.
+pub(crate) fn sum_over_face_chunks(
+    num_faces: usize,
+    chunk_sum: impl Fn(std::ops::Range<usize>) -> f64 + Sync,
+) -> f64 {
+    use rayon::prelude::*;
+    const CHUNK: usize = 4096;
+    let chunks: Vec<f64> = (0..num_faces.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| chunk_sum(c * CHUNK..((c + 1) * CHUNK).min(num_faces)))
         .collect();
-    chunks.iter().sum::<f64>() / 6.0
+    chunks.iter().sum()
 }
 
 #[cfg(test)]

@@ -139,9 +139,8 @@ impl Topology {
 
     /// Vertex `v`'s neighbours as the first `n` entries of a block of 6
     /// (the rest belong to other vertices or are padding), or `None` when
-    /// it has more: a loop over a whole block has
-    /// a fixed trip count, where a loop over a short list of varying length
-    /// mispredicts its exit.
+    /// it has more: a loop over a whole block has a fixed trip count, where
+    /// a loop over a short list of varying length mispredicts its exit.
     #[inline]
     pub(crate) fn neighbor_block(&self, v: usize) -> Option<(&[u32; NEIGHBOR_BLOCK], usize)> {
         let (a, b) = (self.vv_offsets[v] as usize, self.vv_offsets[v + 1] as usize);

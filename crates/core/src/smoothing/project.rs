@@ -356,9 +356,9 @@ fn with_momentum(
 }
 
 /// Vertex `v`'s move by its stored fit weights `w` (laid out by unit,
-/// [`NeighbourWeights::get_f32_into`]) along its current unit normal `n`, and the
-/// drift it adds ([`UNFITTED_DRIFT`]): its length, or infinity when it is cut to
-/// zero beyond `limit` (counted as clamped, [`weighted_pass`]).
+/// [`NeighbourWeights::get_f32_into`]) along its current unit normal `n`,
+/// and the drift it adds ([`UNFITTED_DRIFT`]): its length, or infinity when
+/// it is cut to zero beyond `limit` (counted as clamped, [`weighted_pass`]).
 #[allow(clippy::too_many_arguments)]
 #[inline]
 fn reused_move(

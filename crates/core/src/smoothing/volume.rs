@@ -8,7 +8,7 @@
 //! offset removes the mean of that bias without touching the shape.
 
 use super::normals::vertex_normals;
-use crate::mesh::{Mesh, Topology, signed_volume};
+use crate::mesh::{Mesh, Topology, signed_volume, sum_over_face_chunks};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -30,17 +30,9 @@ pub fn restore_volume(
 ) -> f64 {
     let normals = vertex_normals(mesh, topo, positions);
     let base: Vec<DVec3> = positions.to_vec();
-    // Fixed chunks summed in order: the same bits whatever the thread count.
-    let area: f64 = (0..mesh.num_faces().div_ceil(4096))
-        .into_par_iter()
-        .map(|c| {
-            (c * 4096..((c + 1) * 4096).min(mesh.num_faces()))
-                .map(|f| mesh.face_vector_area(f).length())
-                .sum::<f64>()
-        })
-        .collect::<Vec<f64>>()
-        .iter()
-        .sum();
+    let area = sum_over_face_chunks(mesh.num_faces(), |faces| {
+        faces.map(|f| mesh.face_vector_area(f).length()).sum()
+    });
     let current = signed_volume(mesh, positions);
     if area <= 0.0 || target * current <= 0.0 {
         return 0.0;
