@@ -10,10 +10,10 @@ mod progress;
 mod summary;
 
 use anyhow::{Context, anyhow};
-use meshsmooth_core::io::{self, Document, Format, ReadLimits, ReadOptions, WriteOptions};
-use meshsmooth_core::pipeline::measure;
-use meshsmooth_core::report::{MeshStatistics, SCHEMA_VERSION, StageMeasures, sha256_hex};
-use meshsmooth_core::{Params, SmoothOutput};
+use meshsmooth_core::Params;
+use meshsmooth_core::io::{Format, ReadLimits};
+use meshsmooth_core::job::{Input, JobError};
+use meshsmooth_core::report::{MeshStatistics, SCHEMA_VERSION, StageMeasures};
 use std::io::{IsTerminal, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -125,13 +125,9 @@ fn display(path: &Path) -> String {
     }
 }
 
-/// Reads and parses the input with `options` (limits, welding); every
-/// failure is an input error (exit 3).
-fn read_input(
-    path: &Path,
-    format: Option<Format>,
-    options: &ReadOptions,
-) -> Result<(Vec<u8>, Document), Failure> {
+/// Reads and parses the input for a job with `params` (limits, welding);
+/// every failure is an input error (exit 3).
+fn read_input(path: &Path, format: Option<Format>, params: &Params) -> Result<Input, Failure> {
     let name = display(path);
     let bytes = if is_stdio(path) {
         let mut bytes = Vec::new();
@@ -154,10 +150,9 @@ fn read_input(
                 "cannot tell the format of {name}; name it with --input-format"
             ))
         })?;
-    let doc = io::read_with(&bytes, format, options)
+    Input::read(&bytes, format, params, ReadLimits::default())
         .with_context(|| format!("cannot read {name}"))
-        .map_err(Failure::input)?;
-    Ok((bytes, doc))
+        .map_err(Failure::input)
 }
 
 /// Writes `bytes` to `path` (`-` for stdout).
@@ -198,11 +193,8 @@ fn run_smooth(args: SmoothArgs) -> Result<(), Failure> {
             "the output and the report cannot both go to stdout"
         )));
     }
-    let mut params = load_params(&args)?;
-    let read_options = params.read_options(ReadLimits::default());
-    let (input_bytes, doc) = read_input(&args.input, args.input_format, &read_options)?;
-    // The report records the welding as done, not as asked (`null`).
-    params.weld = Some(doc.welded);
+    let params = load_params(&args)?;
+    let input = read_input(&args.input, args.input_format, &params)?;
     let out_format = args
         .format
         .or_else(|| {
@@ -210,33 +202,27 @@ fn run_smooth(args: SmoothArgs) -> Result<(), Failure> {
                 .then(|| args.output.to_str().and_then(Format::from_file_name))
                 .flatten()
         })
-        .unwrap_or(doc.format);
+        .unwrap_or(input.format());
 
     let show = !args.quiet && std::io::stderr().is_terminal();
     let bar = progress::Bar::new(show);
     let cancel = AtomicBool::new(false);
     let started = Instant::now();
     let result = on_threads(args.threads, || {
-        meshsmooth_core::run(&doc.mesh, &params, &bar, &cancel)
+        input.smooth(&params, out_format, &bar, &cancel)
     })?;
     bar.finish();
-    let SmoothOutput {
-        positions,
-        mut report,
-        per_vertex,
-    } = result
-        .with_context(|| format!("smoothing {} failed", display(&args.input)))
-        .map_err(Failure::smoothing)?;
+    let output = result.map_err(|e| match e {
+        JobError::Write(e) => {
+            Failure::other(anyhow::Error::new(e).context("cannot encode the smoothed mesh"))
+        }
+        e => Failure::smoothing(
+            anyhow::Error::new(e).context(format!("smoothing {} failed", display(&args.input))),
+        ),
+    })?;
     let elapsed = started.elapsed();
 
-    let write_options = WriteOptions {
-        results: params.vertex_results.then(|| (&per_vertex).into()),
-        ..WriteOptions::default()
-    };
-    let out_bytes = io::write_with(&doc, &positions, out_format, &write_options)
-        .context("cannot encode the smoothed mesh")
-        .map_err(Failure::other)?;
-    write_output(&args.output, &out_bytes).map_err(Failure::other)?;
+    write_output(&args.output, &output.bytes).map_err(Failure::other)?;
     if params.vertex_results && !args.quiet && matches!(out_format, Format::Obj | Format::Stl) {
         eprintln!(
             "meshsmooth: note: {out_format} cannot hold per-vertex results; --vertex-results \
@@ -244,9 +230,7 @@ fn run_smooth(args: SmoothArgs) -> Result<(), Failure> {
         );
     }
 
-    report.mesh.file_vertices = file_vertices(&doc);
-    report.reproducibility.input_sha256 = Some(sha256_hex(&input_bytes));
-    report.reproducibility.output_sha256 = Some(sha256_hex(&out_bytes));
+    let report = output.report;
     if let Some(path) = &args.report {
         let mut json = serde_json::to_vec_pretty(&report)
             .context("cannot encode the report")
@@ -256,7 +240,7 @@ fn run_smooth(args: SmoothArgs) -> Result<(), Failure> {
     }
     if !args.quiet {
         let mut err = std::io::stderr().lock();
-        let _ = summary::smoothed(&mut err, &doc.mesh, &report, elapsed);
+        let _ = summary::smoothed(&mut err, input.mesh(), &report, elapsed);
     }
     Ok(())
 }
@@ -293,12 +277,6 @@ struct MeshReport {
     input_sha256: String,
 }
 
-/// Vertices of the file before welding, for the report; `None` when the
-/// file was not welded.
-fn file_vertices(doc: &Document) -> Option<u64> {
-    doc.vertex_map.as_ref().map(|map| map.len() as u64)
-}
-
 fn run_report(args: ReportArgs) -> Result<(), Failure> {
     let mut params = Params::default();
     args.weld.apply(&mut params);
@@ -306,22 +284,18 @@ fn run_report(args: ReportArgs) -> Result<(), Failure> {
         .validate()
         .context("invalid parameters")
         .map_err(Failure::usage)?;
-    let read_options = params.read_options(ReadLimits::default());
-    let (bytes, doc) = read_input(&args.input, args.input_format, &read_options)?;
+    let input = read_input(&args.input, args.input_format, &params)?;
     // The smoothing report's input stage, curvature variation included.
-    let measured = measure(&doc.mesh, &params);
+    let measured = input.measure(&params);
     let report = MeshReport {
         schema_version: SCHEMA_VERSION,
-        mesh: MeshStatistics {
-            file_vertices: file_vertices(&doc),
-            ..measured.mesh
-        },
+        mesh: measured.mesh,
         measures: measured
             .stages
             .input
             .context("the input was not measured")
             .map_err(Failure::other)?,
-        input_sha256: sha256_hex(&bytes),
+        input_sha256: input.sha256().to_owned(),
     };
     let mut out = std::io::stdout().lock();
     let written = if args.json {

@@ -5,6 +5,7 @@
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use meshsmooth_core::io::IoError;
+use meshsmooth_core::job::JobError;
 use meshsmooth_core::{ParamError, SmoothError};
 use serde::Serialize;
 use utoipa::ToSchema;
@@ -176,6 +177,15 @@ impl From<IoError> for Problem {
 impl From<ParamError> for Problem {
     fn from(e: ParamError) -> Self {
         Problem::new(e.code(), e.to_string()).with_field(e.field)
+    }
+}
+
+impl From<JobError> for Problem {
+    fn from(e: JobError) -> Self {
+        match e {
+            JobError::Read(e) | JobError::Write(e) => e.into(),
+            JobError::Smooth(e) => e.into(),
+        }
     }
 }
 

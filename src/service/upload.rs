@@ -9,7 +9,8 @@ use axum::extract::{FromRequest, Multipart, Query};
 use axum::http::{HeaderMap, Request, Uri, header};
 use futures_util::StreamExt;
 use meshsmooth_core::Params;
-use meshsmooth_core::io::{self, Document, Format, ReadLimits, ReadOptions};
+use meshsmooth_core::io::{Format, ReadLimits};
+use meshsmooth_core::job::Input;
 use serde_json::{Map, Value};
 use std::sync::Arc;
 use std::time::Duration;
@@ -44,7 +45,7 @@ impl UploadConfig {
 #[derive(Debug)]
 pub struct Upload {
     /// The parsed mesh file.
-    pub document: Document,
+    pub document: Input,
     /// Validated parameters.
     pub params: Params,
     /// Format to write the result in (`?format=`, default the input's).
@@ -155,10 +156,9 @@ pub async fn read_upload(req: Request<Body>, config: &UploadConfig) -> Result<Up
     };
     let bytes = raw.bytes.len() as u64;
     metrics::counter!("meshsmooth_upload_bytes_total").increment(bytes);
-    let options = params.read_options(config.read_limits.clone());
-    let document = parse(raw.bytes, format, options, config).await?;
+    let document = parse(raw.bytes, format, params.clone(), config).await?;
     Ok(Upload {
-        output_format: query.output_format.unwrap_or(document.format),
+        output_format: query.output_format.unwrap_or(document.format()),
         document,
         params,
         bytes,
@@ -327,14 +327,16 @@ fn multipart_problem(e: axum::extract::multipart::MultipartError) -> Problem {
     }
 }
 
-/// Parses with `options` (limits and welding) on the blocking pool, a
-/// bounded number at a time.
+/// Reads the job's input with the reading options of `params` (welding)
+/// under the configured limits on the blocking pool, a bounded number at a
+/// time.
 async fn parse(
     bytes: Vec<u8>,
     format: Format,
-    options: ReadOptions,
+    params: Params,
     config: &UploadConfig,
-) -> Result<Document, Problem> {
+) -> Result<Input, Problem> {
+    let limits = config.read_limits.clone();
     let permit = config
         .parse_slots
         .clone()
@@ -343,7 +345,7 @@ async fn parse(
         .map_err(|_| Problem::new("shutting_down", "the service is shutting down"))?;
     let parsed = tokio::task::spawn_blocking(move || {
         let _permit = permit;
-        io::read_with(&bytes, format, &options)
+        Input::read(&bytes, format, &params, limits)
     })
     .await;
     match parsed {

@@ -6,5 +6,6 @@ mod errors;
 mod jobs;
 mod operations;
 mod overload;
+mod parity;
 mod support;
 mod weld;

@@ -7,6 +7,7 @@
 
 pub mod error;
 pub mod io;
+pub mod job;
 pub mod mesh;
 pub mod params;
 pub mod pipeline;

@@ -5,7 +5,6 @@
 //! field's doc comment states it, and `tests::defaults_are_pinned` pins it.
 //! Unknown fields are rejected when deserialising.
 
-use crate::io::{ReadLimits, ReadOptions};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -358,16 +357,6 @@ impl Params {
             self.max_normal_angle_deg.to_radians().cos()
         }
     }
-
-    /// Reading options for a file to be smoothed with these parameters:
-    /// `limits` plus [`Params::weld`] and [`Params::weld_tolerance`].
-    pub fn read_options(&self, limits: ReadLimits) -> ReadOptions {
-        ReadOptions {
-            limits,
-            weld: self.weld,
-            weld_tolerance: self.weld_tolerance,
-        }
-    }
 }
 
 #[cfg(test)]
@@ -490,26 +479,5 @@ mod tests {
             assert_eq!(e.field, "weld_tolerance");
             assert!(e.to_string().contains("0..=0.01"), "{e}");
         }
-    }
-
-    #[test]
-    fn read_options_carry_the_weld_fields() {
-        let p = Params {
-            weld: Some(false),
-            weld_tolerance: 0.002,
-            ..Params::default()
-        };
-        let limits = ReadLimits {
-            max_vertices: 7,
-            max_faces: 9,
-        };
-        let o = p.read_options(limits.clone());
-        assert_eq!(o.limits, limits);
-        assert_eq!(o.weld, Some(false));
-        assert_eq!(o.weld_tolerance, 0.002);
-        assert_eq!(
-            Params::default().read_options(ReadLimits::default()),
-            ReadOptions::default()
-        );
     }
 }

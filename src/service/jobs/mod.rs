@@ -13,7 +13,8 @@ mod worker;
 
 use crate::service::error::Problem;
 use axum::body::Bytes;
-use meshsmooth_core::io::{Document, Format};
+use meshsmooth_core::io::Format;
+use meshsmooth_core::job::Input;
 use meshsmooth_core::{Params, Stage};
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
@@ -59,7 +60,7 @@ pub enum TestHook {
 #[derive(Debug)]
 pub struct Submission {
     /// The parsed upload.
-    pub document: Document,
+    pub document: Input,
     /// Validated parameters.
     pub params: Params,
     /// Format the result is written in.
@@ -172,7 +173,7 @@ pub struct Job {
     /// When the job was accepted, wall clock.
     pub created_at: SystemTime,
     hook: Option<TestHook>,
-    document: Mutex<Option<Document>>,
+    document: Mutex<Option<Input>>,
     cancel: AtomicBool,
     cancel_reason: Mutex<Option<CancelReason>>,
     state: Mutex<JobState>,
@@ -182,9 +183,9 @@ pub struct Job {
 impl Job {
     fn new(s: Submission) -> Self {
         let input = InputInfo {
-            format: s.document.format,
-            vertices: s.document.mesh.num_vertices(),
-            faces: s.document.mesh.num_faces(),
+            format: s.document.format(),
+            vertices: s.document.mesh().num_vertices(),
+            faces: s.document.mesh().num_faces(),
             bytes: s.upload_bytes,
         };
         Job {
@@ -329,7 +330,7 @@ impl Job {
         self.notify();
     }
 
-    fn take_document(&self) -> Option<Document> {
+    fn take_document(&self) -> Option<Input> {
         lock(&self.document).take()
     }
 }

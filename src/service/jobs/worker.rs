@@ -3,7 +3,7 @@
 
 use super::{CancelReason, Inner, Job, JobResult, Outcome, TestHook, lock};
 use crate::service::error::Problem;
-use meshsmooth_core::io::{self, Document, WriteOptions};
+use meshsmooth_core::job::{Input, JobError};
 use meshsmooth_core::{Progress, SmoothError, Stage};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::Arc;
@@ -119,35 +119,23 @@ fn run_job(inner: &Inner, job: &Arc<Job>) {
     inner.finish(job, outcome);
 }
 
-/// Runs the pipeline and encodes the result.
-fn execute(job: &Job, document: &Document, progress: &JobProgress) -> Result<JobResult, Stop> {
+/// Runs the job layer and encodes the report.
+fn execute(job: &Job, document: &Input, progress: &JobProgress) -> Result<JobResult, Stop> {
     match job.hook {
         Some(TestHook::Panic) => panic!("test hook: panic injected into job {}", job.id),
         Some(TestHook::Sleep(d)) => sleep_cancellably(job, d)?,
         None => {}
     }
-    let mut output = meshsmooth_core::run(&document.mesh, &job.params, progress, &job.cancel)
+    let output = document
+        .smooth(&job.params, job.output_format, progress, &job.cancel)
         .map_err(|e| match e {
-            SmoothError::Cancelled(_) => Stop::Cancelled,
+            JobError::Smooth(SmoothError::Cancelled(_)) => Stop::Cancelled,
             e => Stop::Failed(e.into()),
         })?;
-    output.report.mesh.file_vertices = document.vertex_map.as_ref().map(|m| m.len() as u64);
-    // The job keeps the parameters as asked; the report records the
-    // welding as done (a `null` request resolved to the format's default).
-    output.report.reproducibility.params.weld = Some(document.welded);
-    let options = WriteOptions {
-        results: job
-            .params
-            .vertex_results
-            .then(|| (&output.per_vertex).into()),
-        ..WriteOptions::default()
-    };
-    let mesh = io::write_with(document, &output.positions, job.output_format, &options)
-        .map_err(|e| Stop::Failed(e.into()))?;
     let report = serde_json::to_vec(&output.report)
         .map_err(|_| Stop::Failed(Problem::internal("the quality report could not be encoded")))?;
     Ok(JobResult {
-        mesh: mesh.into(),
+        mesh: output.bytes.into(),
         format: job.output_format,
         report: report.into(),
     })

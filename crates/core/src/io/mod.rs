@@ -250,17 +250,6 @@ pub struct VertexResults<'a> {
     pub displacement: &'a [f64],
 }
 
-impl<'a> From<&'a crate::pipeline::PerVertex> for VertexResults<'a> {
-    fn from(p: &'a crate::pipeline::PerVertex) -> Self {
-        VertexResults {
-            label: &p.label,
-            mean_curvature: &p.mean_curvature,
-            gaussian_curvature: &p.gaussian_curvature,
-            displacement: &p.displacement,
-        }
-    }
-}
-
 /// Options of [`write_with`].
 #[derive(Debug, Clone, Copy, Default)]
 pub struct WriteOptions<'a> {
