@@ -1,67 +1,182 @@
 //! Errors as HTTP answers: `application/problem+json` (RFC 9457) with a
-//! stable machine-readable `code`. [`status_of`] is the one table from codes
-//! (the core's and the service's own) to HTTP statuses.
+//! stable machine-readable `code`. [`Code`] lists every code (the core's
+//! [`ErrorCode`]s and the service's own), and [`Code::status`] is the one
+//! `match` from codes to HTTP statuses: the compiler checks that each code
+//! has one.
 
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
+use meshsmooth_core::ErrorCode;
 use meshsmooth_core::io::IoError;
 use meshsmooth_core::job::JobError;
 use meshsmooth_core::{ParamError, SmoothError};
 use serde::Serialize;
 use utoipa::ToSchema;
 
-/// The HTTP status for an error code. Codes of the core that this table
-/// does not name yet are problems with the uploaded content (422).
-pub fn status_of(code: &str) -> StatusCode {
-    match code {
-        // The request itself is malformed.
-        "empty_body"
-        | "malformed_multipart"
-        | "missing_mesh_part"
-        | "unexpected_part"
-        | "duplicate_part"
-        | "invalid_params_json"
-        | "unknown_output_format"
-        | "upload_interrupted" => StatusCode::BAD_REQUEST,
-        "job_not_found" | "not_found" => StatusCode::NOT_FOUND,
-        "method_not_allowed" => StatusCode::METHOD_NOT_ALLOWED,
-        "upload_timeout" | "request_timeout" => StatusCode::REQUEST_TIMEOUT,
-        "job_not_finished" | "job_failed" | "job_cancelled" | "cancelled" => StatusCode::CONFLICT,
-        "result_evicted" => StatusCode::GONE,
-        // Too big: the body, or the mesh in it.
-        "upload_too_large" | "params_too_large" | "limit_exceeded" | "mesh_too_large" => {
-            StatusCode::PAYLOAD_TOO_LARGE
+/// Declares [`Code`]: the core's codes plus the service's own, each with
+/// its snake_case text.
+macro_rules! service_codes {
+    ($($(#[$doc:meta])* $variant:ident = $text:literal,)*) => {
+        /// The stable code of an error answer.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+        pub enum Code {
+            /// An error of the mesh core (reading, parameters, smoothing).
+            Core(ErrorCode),
+            $($(#[$doc])* $variant,)*
         }
-        "unsupported_media_type" | "unknown_format" => StatusCode::UNSUPPORTED_MEDIA_TYPE,
-        // Well-formed requests whose content cannot be used: parse errors,
-        // invalid meshes, parameters (the core's codes included).
-        "parse_error"
-        | "unsupported_content"
-        | "face_index_out_of_range"
-        | "face_too_small"
-        | "non_finite_coordinate"
-        | "invalid_mesh"
-        | "no_faces"
-        | "unknown_parameter"
-        | "invalid_parameter"
-        | "parameter_out_of_range"
-        | "conversion_failed" => StatusCode::UNPROCESSABLE_ENTITY,
-        "queue_full" | "shutting_down" | "job_time_limit_exceeded" => {
-            StatusCode::SERVICE_UNAVAILABLE
+
+        impl Code {
+            /// The service's own codes, in declaration order.
+            #[cfg(test)]
+            pub const SERVICE: &[Code] = &[$(Code::$variant,)*];
+
+            /// The snake_case text, e.g. `queue_full`.
+            pub fn as_str(self) -> &'static str {
+                match self {
+                    Code::Core(code) => code.as_str(),
+                    $(Code::$variant => $text,)*
+                }
+            }
         }
-        "internal_error" | "io_error" | "position_count_mismatch" | "job_panicked" => {
-            StatusCode::INTERNAL_SERVER_ERROR
+    };
+}
+
+service_codes! {
+    /// The body is empty.
+    EmptyBody = "empty_body",
+    /// The multipart body is malformed.
+    MalformedMultipart = "malformed_multipart",
+    /// The multipart body has no `mesh` part.
+    MissingMeshPart = "missing_mesh_part",
+    /// The multipart body has a part other than `mesh` and `params`.
+    UnexpectedPart = "unexpected_part",
+    /// The multipart body has a part twice.
+    DuplicatePart = "duplicate_part",
+    /// The parameters are not valid JSON.
+    InvalidParamsJson = "invalid_params_json",
+    /// `?format=` names no format.
+    UnknownOutputFormat = "unknown_output_format",
+    /// The body ended early.
+    UploadInterrupted = "upload_interrupted",
+    /// No such job.
+    JobNotFound = "job_not_found",
+    /// No such route.
+    NotFound = "not_found",
+    /// The route does not take this method.
+    MethodNotAllowed = "method_not_allowed",
+    /// The upload did not arrive in time.
+    UploadTimeout = "upload_timeout",
+    /// The request took too long.
+    RequestTimeout = "request_timeout",
+    /// The job has no result yet.
+    JobNotFinished = "job_not_finished",
+    /// The job failed: it has no result.
+    JobFailed = "job_failed",
+    /// The job was cancelled: it has no result.
+    JobCancelled = "job_cancelled",
+    /// The result was evicted to make room.
+    ResultEvicted = "result_evicted",
+    /// The body is larger than the limit.
+    UploadTooLarge = "upload_too_large",
+    /// The parameters are larger than the limit.
+    ParamsTooLarge = "params_too_large",
+    /// The Content-Type is no mesh format.
+    UnsupportedMediaType = "unsupported_media_type",
+    /// The mesh format cannot be told.
+    UnknownFormat = "unknown_format",
+    /// A parameter that does not exist.
+    UnknownParameter = "unknown_parameter",
+    /// A parameter of the wrong type or value.
+    InvalidParameter = "invalid_parameter",
+    /// The job queue is full.
+    QueueFull = "queue_full",
+    /// The service is shutting down.
+    ShuttingDown = "shutting_down",
+    /// The job ran past the time limit.
+    JobTimeLimitExceeded = "job_time_limit_exceeded",
+    /// An unexpected failure of the service.
+    InternalError = "internal_error",
+    /// The job panicked (the worker goes on).
+    JobPanicked = "job_panicked",
+    /// A result could not be written in the format asked for.
+    ConversionFailed = "conversion_failed",
+}
+
+impl Code {
+    /// The HTTP status of an answer with this code.
+    pub fn status(self) -> StatusCode {
+        use Code::*;
+        match self {
+            // The request itself is malformed.
+            EmptyBody | MalformedMultipart | MissingMeshPart | UnexpectedPart | DuplicatePart
+            | InvalidParamsJson | UnknownOutputFormat | UploadInterrupted => {
+                StatusCode::BAD_REQUEST
+            }
+            JobNotFound | NotFound => StatusCode::NOT_FOUND,
+            MethodNotAllowed => StatusCode::METHOD_NOT_ALLOWED,
+            UploadTimeout | RequestTimeout => StatusCode::REQUEST_TIMEOUT,
+            JobNotFinished | JobFailed | JobCancelled => StatusCode::CONFLICT,
+            ResultEvicted => StatusCode::GONE,
+            UploadTooLarge | ParamsTooLarge => StatusCode::PAYLOAD_TOO_LARGE,
+            UnsupportedMediaType | UnknownFormat => StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            // Well-formed requests whose parameters cannot be used.
+            UnknownParameter | InvalidParameter | ConversionFailed => {
+                StatusCode::UNPROCESSABLE_ENTITY
+            }
+            QueueFull | ShuttingDown | JobTimeLimitExceeded => StatusCode::SERVICE_UNAVAILABLE,
+            InternalError | JobPanicked => StatusCode::INTERNAL_SERVER_ERROR,
+            Core(code) => match code {
+                // Too big: the mesh in the body.
+                ErrorCode::LimitExceeded | ErrorCode::MeshTooLarge => StatusCode::PAYLOAD_TOO_LARGE,
+                // Content that cannot be used: malformed or unsupported
+                // files, invalid meshes, parameters out of range.
+                ErrorCode::ParseError
+                | ErrorCode::FaceIndexOutOfRange
+                | ErrorCode::FaceTooSmall
+                | ErrorCode::NonFiniteCoordinate
+                | ErrorCode::InvalidMesh
+                | ErrorCode::NoFaces
+                | ErrorCode::UnsupportedContent
+                | ErrorCode::ExternalUriNotAllowed
+                | ErrorCode::UnsupportedExtension
+                | ErrorCode::UnsupportedPrimitiveMode
+                | ErrorCode::GltfInvalid
+                | ErrorCode::GlbInvalid
+                | ErrorCode::ParameterOutOfRange => StatusCode::UNPROCESSABLE_ENTITY,
+                ErrorCode::Cancelled => StatusCode::CONFLICT,
+                // Encoding into memory: a failure is ours, not the client's.
+                ErrorCode::PositionCountMismatch | ErrorCode::IoError => {
+                    StatusCode::INTERNAL_SERVER_ERROR
+                }
+            },
         }
-        _ => StatusCode::UNPROCESSABLE_ENTITY,
     }
 }
 
-/// An error answer: status from [`status_of`], a stable `code` and a
+impl From<ErrorCode> for Code {
+    fn from(code: ErrorCode) -> Self {
+        Code::Core(code)
+    }
+}
+
+impl std::fmt::Display for Code {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl PartialEq<&str> for Code {
+    fn eq(&self, other: &&str) -> bool {
+        self.as_str() == *other
+    }
+}
+
+/// An error answer: status from [`Code::status`], a stable `code` and a
 /// `detail` that names the problem (never an internal message).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Problem {
-    /// Stable snake_case code.
-    pub code: &'static str,
+    /// Stable code.
+    pub code: Code,
     /// What went wrong, for a human.
     pub detail: String,
     /// The parameter at fault, for parameter errors (dotted path).
@@ -91,9 +206,9 @@ pub struct ProblemDetails {
 
 impl Problem {
     /// A problem with `code` and `detail`.
-    pub fn new(code: &'static str, detail: impl Into<String>) -> Self {
+    pub fn new(code: impl Into<Code>, detail: impl Into<String>) -> Self {
         Problem {
-            code,
+            code: code.into(),
             detail: detail.into(),
             field: None,
             retry_after: None,
@@ -114,16 +229,16 @@ impl Problem {
 
     /// The HTTP status of this problem.
     pub fn status(&self) -> StatusCode {
-        status_of(self.code)
+        self.code.status()
     }
 
     /// The JSON body.
     pub fn details(&self) -> ProblemDetails {
         ProblemDetails {
             type_uri: format!("urn:meshsmooth:problem:{}", self.code),
-            title: title_of(self.code),
+            title: title_of(self.code.as_str()),
             status: self.status().as_u16(),
-            code: self.code.to_owned(),
+            code: self.code.as_str().to_owned(),
             detail: self.detail.clone(),
             field: self.field.clone(),
         }
@@ -131,7 +246,7 @@ impl Problem {
 
     /// An unexpected failure; `detail` must not reveal internals.
     pub fn internal(detail: impl Into<String>) -> Self {
-        Problem::new("internal_error", detail)
+        Problem::new(Code::InternalError, detail)
     }
 }
 
@@ -166,9 +281,10 @@ impl From<IoError> for Problem {
         match e {
             // Reading from memory and writing to memory cannot fail with an
             // I/O error; if it ever does, it is ours, not the client's.
-            IoError::Io(_) => {
-                Problem::new("io_error", "internal I/O error while encoding the mesh")
-            }
+            IoError::Io(_) => Problem::new(
+                ErrorCode::IoError,
+                "internal I/O error while encoding the mesh",
+            ),
             e => Problem::new(e.code(), e.to_string()),
         }
     }
@@ -211,19 +327,19 @@ pub fn params_problem(e: &serde_json::Error, source: &str) -> Problem {
                 .and_then(|rest| rest.split('`').next())
             {
                 Problem::new(
-                    "unknown_parameter",
+                    Code::UnknownParameter,
                     format!("unknown parameter `{name}` in {source}: {message}"),
                 )
                 .with_field(name)
             } else {
                 Problem::new(
-                    "invalid_parameter",
+                    Code::InvalidParameter,
                     format!("invalid parameters in {source}: {message}"),
                 )
             }
         }
         Category::Syntax | Category::Eof | Category::Io => Problem::new(
-            "invalid_params_json",
+            Code::InvalidParamsJson,
             format!("the parameters in {source} are not valid JSON: {message}"),
         ),
     }
@@ -236,19 +352,36 @@ mod tests {
 
     #[test]
     fn statuses_follow_the_table() {
-        assert_eq!(status_of("parse_error"), StatusCode::UNPROCESSABLE_ENTITY);
-        assert_eq!(status_of("limit_exceeded"), StatusCode::PAYLOAD_TOO_LARGE);
-        assert_eq!(status_of("queue_full"), StatusCode::SERVICE_UNAVAILABLE);
+        let status = |code: &str| {
+            let all = ErrorCode::ALL.iter().map(|&c| Code::Core(c));
+            let code = all
+                .chain(Code::SERVICE.iter().copied())
+                .find(|c| c.as_str() == code)
+                .unwrap_or_else(|| panic!("no code {code}"));
+            code.status()
+        };
+        assert_eq!(status("parse_error"), StatusCode::UNPROCESSABLE_ENTITY);
+        assert_eq!(status("limit_exceeded"), StatusCode::PAYLOAD_TOO_LARGE);
+        assert_eq!(status("queue_full"), StatusCode::SERVICE_UNAVAILABLE);
         assert_eq!(
-            status_of("unsupported_media_type"),
+            status("unsupported_media_type"),
             StatusCode::UNSUPPORTED_MEDIA_TYPE
         );
-        assert_eq!(status_of("job_not_finished"), StatusCode::CONFLICT);
-        assert_eq!(status_of("io_error"), StatusCode::INTERNAL_SERVER_ERROR);
+        assert_eq!(status("job_not_finished"), StatusCode::CONFLICT);
+        assert_eq!(status("io_error"), StatusCode::INTERNAL_SERVER_ERROR);
         assert_eq!(
-            status_of("some_new_core_code"),
+            status("external_uri_not_allowed"),
             StatusCode::UNPROCESSABLE_ENTITY
         );
+    }
+
+    #[test]
+    fn codes_are_distinct() {
+        let mut seen = std::collections::HashSet::new();
+        let core = ErrorCode::ALL.iter().map(|&c| Code::Core(c));
+        for code in core.chain(Code::SERVICE.iter().copied()) {
+            assert!(seen.insert(code.as_str()), "{code} twice");
+        }
     }
 
     #[test]
@@ -274,7 +407,7 @@ mod tests {
 
     #[test]
     fn problem_body_follows_rfc_9457() {
-        let p = Problem::new("queue_full", "the job queue is full (2 jobs)").with_retry_after(3);
+        let p = Problem::new(Code::QueueFull, "the job queue is full (2 jobs)").with_retry_after(3);
         let d = p.details();
         assert_eq!(d.type_uri, "urn:meshsmooth:problem:queue_full");
         assert_eq!(d.title, "Queue full");

@@ -5,7 +5,7 @@
 use crate::service::api::{
     ApiDoc, HealthView, JobView, UploadForm, add_mesh_media_types, job_path,
 };
-use crate::service::error::{Problem, ProblemDetails};
+use crate::service::error::{Code, Problem, ProblemDetails};
 use crate::service::jobs::{
     CancelReason, Deleted, Job, JobResult, JobState, Jobs, Outcome, Submission, TestHook,
 };
@@ -84,7 +84,7 @@ impl AppState {
             .map(|ms| Some(TestHook::Sleep(Duration::from_millis(ms))))
             .ok_or_else(|| {
                 Problem::new(
-                    "invalid_parameter",
+                    Code::InvalidParameter,
                     format!("unknown test hook `{value}` (use `panic` or `sleep=MS`)"),
                 )
             })
@@ -100,7 +100,7 @@ impl AppState {
             metrics::counter!("meshsmooth_jobs_rejected_total", "reason" => "uploads_full")
                 .increment(1);
             Problem::new(
-                "queue_full",
+                Code::QueueFull,
                 format!("too many uploads in progress ({slots}); retry shortly"),
             )
             .with_retry_after(1)
@@ -121,7 +121,7 @@ impl AppState {
 
 fn job_not_found(id: &str) -> Problem {
     Problem::new(
-        "job_not_found",
+        Code::JobNotFound,
         format!("no job `{id}`: it never existed, was deleted or has expired"),
     )
 }
@@ -173,7 +173,7 @@ async fn time_limit(State(limit): State<Duration>, req: Request, next: Next) -> 
     match tokio::time::timeout(limit, next.run(req)).await {
         Ok(response) => response,
         Err(_) => Problem::new(
-            "request_timeout",
+            Code::RequestTimeout,
             format!(
                 "the request took longer than the limit of {} s",
                 limit.as_secs_f64()
@@ -207,14 +207,14 @@ async fn track_requests(req: Request, next: Next) -> Response {
 
 async fn not_found(req: Request) -> Problem {
     Problem::new(
-        "not_found",
+        Code::NotFound,
         format!("no route {} {}", req.method(), req.uri().path()),
     )
 }
 
 async fn method_not_allowed(req: Request) -> Problem {
     Problem::new(
-        "method_not_allowed",
+        Code::MethodNotAllowed,
         format!("{} is not allowed on {}", req.method(), req.uri().path()),
     )
 }
@@ -407,13 +407,13 @@ fn mesh_response(id: &Uuid, format: Format, bytes: Bytes) -> Response {
 fn result_of(job: &Job, state: JobState) -> Result<Arc<JobResult>, Problem> {
     match state {
         JobState::Queued => Err(Problem::new(
-            "job_not_finished",
+            Code::JobNotFinished,
             format!("job {} is queued; wait for it to succeed", job.id),
         )),
         JobState::Running {
             stage, fraction, ..
         } => Err(Problem::new(
-            "job_not_finished",
+            Code::JobNotFinished,
             format!(
                 "job {} is running (stage {}, {:.0}% done); wait for it to succeed",
                 job.id,
@@ -424,7 +424,7 @@ fn result_of(job: &Job, state: JobState) -> Result<Arc<JobResult>, Problem> {
         JobState::Finished { outcome, .. } => match outcome {
             Outcome::Succeeded(Some(result)) => Ok(result),
             Outcome::Succeeded(None) => Err(Problem::new(
-                "result_evicted",
+                Code::ResultEvicted,
                 format!(
                     "the result of job {} was evicted to stay under the result memory budget; \
                      submit the mesh again",
@@ -433,14 +433,14 @@ fn result_of(job: &Job, state: JobState) -> Result<Arc<JobResult>, Problem> {
             )),
             Outcome::Failed(problem) => Err(problem),
             Outcome::Cancelled(CancelReason::Shutdown) => Err(Problem::new(
-                "shutting_down",
+                Code::ShuttingDown,
                 format!(
                     "job {} was cancelled because the service is shutting down",
                     job.id
                 ),
             )),
             Outcome::Cancelled(_) => Err(Problem::new(
-                "job_cancelled",
+                Code::JobCancelled,
                 format!("job {} was cancelled", job.id),
             )),
         },
@@ -451,13 +451,13 @@ fn result_of(job: &Job, state: JobState) -> Result<Arc<JobResult>, Problem> {
 /// routes (the job's own problem is in its `error`).
 fn stored_result(job: &Job) -> Result<Arc<JobResult>, Problem> {
     result_of(job, job.state()).map_err(|p| match p.code {
-        "job_not_finished" | "result_evicted" | "job_cancelled" => p,
-        "shutting_down" => Problem::new(
-            "job_cancelled",
+        Code::JobNotFinished | Code::ResultEvicted | Code::JobCancelled => p,
+        Code::ShuttingDown => Problem::new(
+            Code::JobCancelled,
             format!("job {} was cancelled by the shutdown", job.id),
         ),
         code => Problem::new(
-            "job_failed",
+            Code::JobFailed,
             format!("job {} failed ({code}): {}", job.id, p.detail),
         ),
     })
@@ -575,7 +575,7 @@ async fn convert(
         .clone()
         .acquire_owned()
         .await
-        .map_err(|_| Problem::new("shutting_down", "the service is shutting down"))?;
+        .map_err(|_| Problem::new(Code::ShuttingDown, "the service is shutting down"))?;
     let converted = tokio::task::spawn_blocking(move || {
         let _permit = permit;
         let unlimited = ReadLimits {
@@ -589,7 +589,7 @@ async fn convert(
     .map_err(|_| Problem::internal("the conversion failed on an internal error"))?;
     converted.map(Bytes::from).map_err(|e| {
         Problem::new(
-            "conversion_failed",
+            Code::ConversionFailed,
             format!("the result could not be written as {to}: {e}"),
         )
     })
@@ -727,10 +727,10 @@ async fn healthz() -> Json<HealthView> {
 )]
 async fn readyz(State(state): State<AppState>) -> Response {
     if *state.shutdown.borrow() {
-        return Problem::new("shutting_down", "the service is shutting down").into_response();
+        return Problem::new(Code::ShuttingDown, "the service is shutting down").into_response();
     }
     if !state.jobs.accepting() {
-        return Problem::new("queue_full", "the job queue is full").into_response();
+        return Problem::new(Code::QueueFull, "the job queue is full").into_response();
     }
     Json(HealthView {
         status: "ready".into(),

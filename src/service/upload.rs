@@ -3,7 +3,7 @@
 //! format, under the size and time limits; the mesh is parsed on the
 //! blocking pool once the parameters are known (they choose the welding).
 
-use crate::service::error::{Problem, params_problem};
+use crate::service::error::{Code, Problem, params_problem};
 use axum::body::Body;
 use axum::extract::{FromRequest, Multipart, Query};
 use axum::http::{HeaderMap, Request, Uri, header};
@@ -81,7 +81,7 @@ pub async fn read_upload(req: Request<Body>, config: &UploadConfig) -> Result<Up
         .map(str::to_owned);
     let Some(content_type) = content_type else {
         return Err(Problem::new(
-            "unsupported_media_type",
+            Code::UnsupportedMediaType,
             format!(
                 "the request has no Content-Type; {RAW_TYPES_HINT} ({})",
                 raw_types()
@@ -117,7 +117,7 @@ pub async fn read_upload(req: Request<Body>, config: &UploadConfig) -> Result<Up
         .await
         .map_err(|_| {
             Problem::new(
-                "upload_timeout",
+                Code::UploadTimeout,
                 format!(
                     "the upload did not arrive within the upload time limit of {} s",
                     config.timeout.as_secs_f64()
@@ -128,7 +128,7 @@ pub async fn read_upload(req: Request<Body>, config: &UploadConfig) -> Result<Up
     let params = match (raw.params, query_params) {
         (Some(_), Some(_)) => {
             return Err(Problem::new(
-                "invalid_parameter",
+                Code::InvalidParameter,
                 "parameters were given both in the `params` part and in the query string; use one",
             ));
         }
@@ -141,11 +141,11 @@ pub async fn read_upload(req: Request<Body>, config: &UploadConfig) -> Result<Up
         (None, None) => Params::default(),
     };
     if raw.bytes.is_empty() {
-        return Err(Problem::new("empty_body", "the mesh file is empty"));
+        return Err(Problem::new(Code::EmptyBody, "the mesh file is empty"));
     }
     let Some(format) = raw.format.or_else(|| Format::sniff(&raw.bytes)) else {
         return Err(Problem::new(
-            "unknown_format",
+            Code::UnknownFormat,
             format!(
                 "the mesh format could not be determined from the file name, the part's \
                  Content-Type or the content; name the file with an extension or set a \
@@ -186,7 +186,7 @@ fn content_length(headers: &HeaderMap) -> Option<u64> {
 
 fn too_large(bytes: u64, limit: u64) -> Problem {
     Problem::new(
-        "upload_too_large",
+        Code::UploadTooLarge,
         format!("the upload is {bytes} bytes; the limit is {limit} bytes"),
     )
 }
@@ -203,7 +203,7 @@ fn raw_format(essence: &str) -> Result<Option<Format>, Problem> {
     }
     Format::from_content_type(essence).map(Some).ok_or_else(|| {
         Problem::new(
-            "unsupported_media_type",
+            Code::UnsupportedMediaType,
             format!(
                 "Content-Type `{essence}` is not a mesh format; {RAW_TYPES_HINT} ({}, or \
                  application/octet-stream to detect the format from the content)",
@@ -228,7 +228,7 @@ fn push_limited(buf: &mut Vec<u8>, chunk: &[u8], limit: u64) -> Result<(), Probl
     let total = (buf.len() + chunk.len()) as u64;
     if total > limit {
         return Err(Problem::new(
-            "upload_too_large",
+            Code::UploadTooLarge,
             format!("the mesh file exceeds the limit of {limit} bytes"),
         ));
     }
@@ -238,7 +238,7 @@ fn push_limited(buf: &mut Vec<u8>, chunk: &[u8], limit: u64) -> Result<(), Probl
 
 fn interrupted() -> Problem {
     Problem::new(
-        "upload_interrupted",
+        Code::UploadInterrupted,
         "the request body ended early or could not be read",
     )
 }
@@ -246,7 +246,7 @@ fn interrupted() -> Problem {
 async fn read_multipart(req: Request<Body>, config: &UploadConfig) -> Result<RawUpload, Problem> {
     let mut multipart = Multipart::from_request(req, &())
         .await
-        .map_err(|e| Problem::new("malformed_multipart", e.body_text()))?;
+        .map_err(|e| Problem::new(Code::MalformedMultipart, e.body_text()))?;
     let mut mesh: Option<(Vec<u8>, Option<Format>)> = None;
     let mut params: Option<Vec<u8>> = None;
     while let Some(mut field) = multipart.next_field().await.map_err(multipart_problem)? {
@@ -274,7 +274,7 @@ async fn read_multipart(req: Request<Body>, config: &UploadConfig) -> Result<Raw
                 while let Some(chunk) = field.chunk().await.map_err(multipart_problem)? {
                     if (bytes.len() + chunk.len()) as u64 > config.max_params_bytes {
                         return Err(Problem::new(
-                            "params_too_large",
+                            Code::ParamsTooLarge,
                             format!(
                                 "the `params` part exceeds the limit of {} bytes",
                                 config.max_params_bytes
@@ -287,7 +287,7 @@ async fn read_multipart(req: Request<Body>, config: &UploadConfig) -> Result<Raw
             }
             other => {
                 return Err(Problem::new(
-                    "unexpected_part",
+                    Code::UnexpectedPart,
                     format!(
                         "unexpected multipart part `{other}`; the parts are `mesh` (the file) \
                          and `params` (JSON, optional)"
@@ -298,7 +298,7 @@ async fn read_multipart(req: Request<Body>, config: &UploadConfig) -> Result<Raw
     }
     let Some((bytes, format)) = mesh else {
         return Err(Problem::new(
-            "missing_mesh_part",
+            Code::MissingMeshPart,
             "the multipart body has no `mesh` part (the mesh file)",
         ));
     };
@@ -311,7 +311,7 @@ async fn read_multipart(req: Request<Body>, config: &UploadConfig) -> Result<Raw
 
 fn duplicate(part: &str) -> Problem {
     Problem::new(
-        "duplicate_part",
+        Code::DuplicatePart,
         format!("the multipart body has more than one `{part}` part"),
     )
 }
@@ -319,11 +319,11 @@ fn duplicate(part: &str) -> Problem {
 fn multipart_problem(e: axum::extract::multipart::MultipartError) -> Problem {
     if e.status() == axum::http::StatusCode::PAYLOAD_TOO_LARGE {
         Problem::new(
-            "upload_too_large",
+            Code::UploadTooLarge,
             format!("the multipart body is too large: {}", e.body_text()),
         )
     } else {
-        Problem::new("malformed_multipart", e.body_text())
+        Problem::new(Code::MalformedMultipart, e.body_text())
     }
 }
 
@@ -342,7 +342,7 @@ async fn parse(
         .clone()
         .acquire_owned()
         .await
-        .map_err(|_| Problem::new("shutting_down", "the service is shutting down"))?;
+        .map_err(|_| Problem::new(Code::ShuttingDown, "the service is shutting down"))?;
     let parsed = tokio::task::spawn_blocking(move || {
         let _permit = permit;
         Input::read(&bytes, format, &params, limits)
@@ -373,15 +373,16 @@ impl QueryInput {
     /// Reads `format`, `params` (a whole JSON object) and dotted parameter
     /// keys (`k_max=5`, `quality.enabled=false`) from the query string.
     pub fn parse(uri: &Uri, config: &UploadConfig) -> Result<QueryInput, Problem> {
-        let Query(pairs) = Query::<Vec<(String, String)>>::try_from_uri(uri)
-            .map_err(|e| Problem::new("invalid_parameter", format!("invalid query string: {e}")))?;
+        let Query(pairs) = Query::<Vec<(String, String)>>::try_from_uri(uri).map_err(|e| {
+            Problem::new(Code::InvalidParameter, format!("invalid query string: {e}"))
+        })?;
         let mut input = QueryInput::default();
         let mut object = Map::new();
         let mut whole: Option<Value> = None;
         for (key, value) in pairs {
             if value.len() as u64 > config.max_params_bytes {
                 return Err(Problem::new(
-                    "params_too_large",
+                    Code::ParamsTooLarge,
                     format!(
                         "query value `{key}` exceeds the limit of {} bytes",
                         config.max_params_bytes
@@ -401,7 +402,7 @@ impl QueryInput {
         input.params = match (whole, object.is_empty()) {
             (Some(_), false) => {
                 return Err(Problem::new(
-                    "invalid_parameter",
+                    Code::InvalidParameter,
                     "give parameters either as `params=<JSON>` or as separate query keys, not both",
                 ));
             }
@@ -416,7 +417,7 @@ impl QueryInput {
 /// Parses `?format=`.
 pub fn parse_output_format(name: &str) -> Result<Format, Problem> {
     name.parse::<Format>()
-        .map_err(|e| Problem::new("unknown_output_format", e.to_string()))
+        .map_err(|e| Problem::new(Code::UnknownOutputFormat, e.to_string()))
 }
 
 /// A query value as JSON: numbers, booleans and `null` as such, anything
@@ -431,7 +432,7 @@ fn scalar(raw: &str) -> Value {
 /// Inserts `value` at a dotted path (`quality.enabled`) into `object`.
 fn insert_dotted(object: &mut Map<String, Value>, key: &str, value: Value) -> Result<(), Problem> {
     let bad = |why: &str| {
-        Problem::new("invalid_parameter", format!("query key `{key}` {why}")).with_field(key)
+        Problem::new(Code::InvalidParameter, format!("query key `{key}` {why}")).with_field(key)
     };
     let mut segments = key.split('.').peekable();
     let mut current = object;
@@ -476,7 +477,7 @@ fn path_problem(e: &serde_path_to_error::Error<serde_json::Error>, source: &str)
         problem.field = Some(match problem.field.take() {
             // An unknown key is reported with the path of the object
             // holding it.
-            Some(name) if problem.code == "unknown_parameter" && !path.ends_with(&name) => {
+            Some(name) if problem.code == Code::UnknownParameter && !path.ends_with(&name) => {
                 format!("{path}.{name}")
             }
             _ => path,

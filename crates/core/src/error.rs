@@ -1,5 +1,6 @@
-//! Typed errors of the mesh core. The service maps each variant to an HTTP
-//! status and a stable machine-readable code in one place (`code()`).
+//! Typed errors of the mesh core and the one list of their stable,
+//! machine-readable codes ([`ErrorCode`]). Each error's `code()` names its
+//! code; the service maps every code to an HTTP status in one `match`.
 
 use thiserror::Error;
 
@@ -32,14 +33,109 @@ pub enum MeshError {
 }
 
 impl MeshError {
-    /// Stable snake_case code for machine consumers.
-    pub fn code(&self) -> &'static str {
+    /// Stable code for machine consumers.
+    pub fn code(&self) -> ErrorCode {
         match self {
-            MeshError::IndexOutOfRange { .. } => "face_index_out_of_range",
-            MeshError::FaceTooSmall { .. } => "face_too_small",
-            MeshError::NonFinitePosition { .. } => "non_finite_coordinate",
-            MeshError::InvalidOffsets(_) => "invalid_mesh",
-            MeshError::TooLarge { .. } => "mesh_too_large",
+            MeshError::IndexOutOfRange { .. } => ErrorCode::FaceIndexOutOfRange,
+            MeshError::FaceTooSmall { .. } => ErrorCode::FaceTooSmall,
+            MeshError::NonFinitePosition { .. } => ErrorCode::NonFiniteCoordinate,
+            MeshError::InvalidOffsets(_) => ErrorCode::InvalidMesh,
+            MeshError::TooLarge { .. } => ErrorCode::MeshTooLarge,
+        }
+    }
+}
+
+/// Declares [`ErrorCode`] with each variant's snake_case text.
+macro_rules! error_codes {
+    ($($(#[$doc:meta])* $variant:ident = $text:literal,)*) => {
+        /// The stable code of every error the core reports: what a machine
+        /// consumer matches on (the service's `code` field). Adding one makes
+        /// every exhaustive `match` on it (the service's status table)
+        /// name it.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+        pub enum ErrorCode {
+            $($(#[$doc])* $variant,)*
+        }
+
+        impl ErrorCode {
+            /// Every code, in declaration order.
+            pub const ALL: &[ErrorCode] = &[$(ErrorCode::$variant,)*];
+
+            /// The snake_case text, e.g. `parse_error`.
+            pub fn as_str(self) -> &'static str {
+                match self {
+                    $(ErrorCode::$variant => $text,)*
+                }
+            }
+        }
+    };
+}
+
+error_codes! {
+    /// A file is malformed.
+    ParseError = "parse_error",
+    /// A face refers to a vertex that does not exist.
+    FaceIndexOutOfRange = "face_index_out_of_range",
+    /// A face has fewer than three corners.
+    FaceTooSmall = "face_too_small",
+    /// A coordinate is NaN or infinite.
+    NonFiniteCoordinate = "non_finite_coordinate",
+    /// The face offsets are not valid.
+    InvalidMesh = "invalid_mesh",
+    /// The mesh exceeds what 32-bit indices address.
+    MeshTooLarge = "mesh_too_large",
+    /// A vertex or face count exceeds the reading limits.
+    LimitExceeded = "limit_exceeded",
+    /// The file has no faces.
+    NoFaces = "no_faces",
+    /// The file uses something the reader does not support.
+    UnsupportedContent = "unsupported_content",
+    /// Positions handed to a writer are not one per vertex.
+    PositionCountMismatch = "position_count_mismatch",
+    /// Reading or writing failed below the format.
+    IoError = "io_error",
+    /// A glTF file refers to an external resource (never fetched).
+    ExternalUriNotAllowed = "external_uri_not_allowed",
+    /// A glTF file requires an extension the reader does not handle.
+    UnsupportedExtension = "unsupported_extension",
+    /// A glTF file has only points or lines.
+    UnsupportedPrimitiveMode = "unsupported_primitive_mode",
+    /// A glTF document breaks the specification.
+    GltfInvalid = "gltf_invalid",
+    /// A GLB container is malformed.
+    GlbInvalid = "glb_invalid",
+    /// A parameter is out of its range.
+    ParameterOutOfRange = "parameter_out_of_range",
+    /// The run was cancelled.
+    Cancelled = "cancelled",
+}
+
+impl std::fmt::Display for ErrorCode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl PartialEq<&str> for ErrorCode {
+    fn eq(&self, other: &&str) -> bool {
+        self.as_str() == *other
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn codes_are_distinct_snake_case() {
+        let mut seen = std::collections::HashSet::new();
+        for code in ErrorCode::ALL {
+            let s = code.as_str();
+            assert!(seen.insert(s), "{s} twice");
+            assert!(
+                s.bytes().all(|b| b.is_ascii_lowercase() || b == b'_'),
+                "{s}"
+            );
         }
     }
 }

@@ -17,7 +17,7 @@ pub mod shapes;
 pub mod smoothing;
 mod sort;
 
-pub use error::MeshError;
+pub use error::{ErrorCode, MeshError};
 pub use mesh::{Mesh, Topology, VertexKind};
 pub use params::{Method, ParamError, Params};
 pub use pipeline::{Cancelled, NoProgress, Progress, SmoothError, SmoothOutput, Stage, run};

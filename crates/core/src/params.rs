@@ -5,6 +5,7 @@
 //! field's doc comment states it, and `tests::defaults_are_pinned` pins it.
 //! Unknown fields are rejected when deserialising.
 
+use crate::error::ErrorCode;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -246,9 +247,9 @@ pub struct ParamError {
 }
 
 impl ParamError {
-    /// Stable snake_case code.
-    pub fn code(&self) -> &'static str {
-        "parameter_out_of_range"
+    /// Stable code.
+    pub fn code(&self) -> ErrorCode {
+        ErrorCode::ParameterOutOfRange
     }
 }
 

@@ -1,6 +1,7 @@
 //! `run(mesh, &params, &progress, &cancel)`: the whole smoothing pipeline,
 //! one entry point shared by the CLI and the service.
 
+use crate::error::ErrorCode;
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length, signed_volume};
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
 use crate::quality::{
@@ -92,11 +93,11 @@ pub enum SmoothError {
 }
 
 impl SmoothError {
-    /// Stable snake_case code.
-    pub fn code(&self) -> &'static str {
+    /// Stable code.
+    pub fn code(&self) -> ErrorCode {
         match self {
             SmoothError::Params(e) => e.code(),
-            SmoothError::Cancelled(_) => "cancelled",
+            SmoothError::Cancelled(_) => ErrorCode::Cancelled,
         }
     }
 }

@@ -132,7 +132,7 @@ fn check(path: &Path) -> Result<String, String> {
     let bytes = std::fs::read(path).unwrap();
     let format = Format::from_file_name(&name).unwrap();
     let limits = ReadLimits::default();
-    let doc = io::read(&bytes, format, &limits).map_err(|e| e.code().to_owned())?;
+    let doc = io::read(&bytes, format, &limits).map_err(|e| e.code().as_str().to_owned())?;
 
     // Identity write.
     let out = io::write(&doc, doc.mesh.positions(), format).unwrap();

@@ -187,7 +187,7 @@ fn check_never_panics(bytes: &[u8]) {
             assert_eq!(again, mesh);
         }
         Err(e) => {
-            assert!(!e.code().is_empty());
+            assert!(!e.code().as_str().is_empty());
             assert!(!e.to_string().is_empty());
         }
     }

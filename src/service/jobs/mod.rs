@@ -11,7 +11,7 @@
 mod store;
 mod worker;
 
-use crate::service::error::Problem;
+use crate::service::error::{Code, Problem};
 use axum::body::Bytes;
 use meshsmooth_core::io::Format;
 use meshsmooth_core::job::Input;
@@ -563,7 +563,8 @@ impl Jobs {
 
 /// Counts a refused submission by its code.
 fn count_rejection(problem: Problem) -> Problem {
-    metrics::counter!("meshsmooth_jobs_rejected_total", "reason" => problem.code).increment(1);
+    metrics::counter!("meshsmooth_jobs_rejected_total", "reason" => problem.code.as_str())
+        .increment(1);
     problem
 }
 
@@ -571,7 +572,7 @@ impl Inner {
     fn refusal(&self, q: &Queue) -> Option<Problem> {
         if q.closed {
             return Some(Problem::new(
-                "shutting_down",
+                Code::ShuttingDown,
                 "the service is shutting down and accepts no new jobs",
             ));
         }
@@ -580,7 +581,7 @@ impl Inner {
             let retry = self.retry_after(q.items.len());
             return Some(
                 Problem::new(
-                    "queue_full",
+                    Code::QueueFull,
                     format!(
                         "the job queue is full ({capacity} jobs waiting); retry in about {retry} s"
                     ),

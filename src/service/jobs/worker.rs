@@ -2,7 +2,7 @@
 //! one job per thread at a time, each inside `catch_unwind`.
 
 use super::{CancelReason, Inner, Job, JobResult, Outcome, TestHook, lock};
-use crate::service::error::Problem;
+use crate::service::error::{Code, Problem};
 use meshsmooth_core::job::{Input, JobError};
 use meshsmooth_core::{Progress, SmoothError, Stage};
 use std::panic::{AssertUnwindSafe, catch_unwind};
@@ -83,7 +83,7 @@ fn run_job(inner: &Inner, job: &Arc<Job>) {
                     "job stopped at the time limit"
                 );
                 Outcome::Failed(Problem::new(
-                    "job_time_limit_exceeded",
+                    Code::JobTimeLimitExceeded,
                     format!(
                         "the job ran longer than the time limit of {} s and was stopped",
                         limit.as_secs_f64()
@@ -96,7 +96,7 @@ fn run_job(inner: &Inner, job: &Arc<Job>) {
             }
         },
         Ok(Err(Stop::Failed(problem))) => {
-            info!(code = problem.code, detail = %problem.detail, "job failed");
+            info!(code = problem.code.as_str(), detail = %problem.detail, "job failed");
             Outcome::Failed(problem)
         }
         Err(panic) => {
@@ -108,7 +108,7 @@ fn run_job(inner: &Inner, job: &Arc<Job>) {
             error!(panic = %message, "job panicked; the worker goes on");
             metrics::counter!("meshsmooth_job_panics_total").increment(1);
             Outcome::Failed(Problem::new(
-                "job_panicked",
+                Code::JobPanicked,
                 format!(
                     "the job failed on an internal error (request id {}); other jobs are not affected",
                     job.request_id

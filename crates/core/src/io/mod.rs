@@ -12,6 +12,7 @@ pub mod ply;
 pub mod stl;
 pub mod weld;
 
+use crate::error::ErrorCode;
 use crate::mesh::Mesh;
 use glam::DVec3;
 use thiserror::Error;
@@ -363,24 +364,24 @@ fn primitive_mode_name(mode: u64) -> &'static str {
 }
 
 impl IoError {
-    /// Stable snake_case code.
-    pub fn code(&self) -> &'static str {
+    /// Stable code.
+    pub fn code(&self) -> ErrorCode {
         match self {
-            IoError::Parse { .. } => "parse_error",
+            IoError::Parse { .. } => ErrorCode::ParseError,
             // The same codes as the mesh's own checks (`MeshError`).
-            IoError::IndexOutOfRange { .. } => "face_index_out_of_range",
-            IoError::NonFiniteCoordinate { .. } => "non_finite_coordinate",
-            IoError::Limit { .. } => "limit_exceeded",
-            IoError::NoFaces { .. } => "no_faces",
-            IoError::Unsupported { .. } => "unsupported_content",
+            IoError::IndexOutOfRange { .. } => ErrorCode::FaceIndexOutOfRange,
+            IoError::NonFiniteCoordinate { .. } => ErrorCode::NonFiniteCoordinate,
+            IoError::Limit { .. } => ErrorCode::LimitExceeded,
+            IoError::NoFaces { .. } => ErrorCode::NoFaces,
+            IoError::Unsupported { .. } => ErrorCode::UnsupportedContent,
             IoError::Mesh(e) => e.code(),
-            IoError::PositionCount { .. } => "position_count_mismatch",
-            IoError::Io(_) => "io_error",
-            IoError::ExternalUri { .. } => "external_uri_not_allowed",
-            IoError::UnsupportedExtension { .. } => "unsupported_extension",
-            IoError::UnsupportedPrimitiveMode { .. } => "unsupported_primitive_mode",
-            IoError::GltfInvalid { .. } => "gltf_invalid",
-            IoError::GlbInvalid(_) => "glb_invalid",
+            IoError::PositionCount { .. } => ErrorCode::PositionCountMismatch,
+            IoError::Io(_) => ErrorCode::IoError,
+            IoError::ExternalUri { .. } => ErrorCode::ExternalUriNotAllowed,
+            IoError::UnsupportedExtension { .. } => ErrorCode::UnsupportedExtension,
+            IoError::UnsupportedPrimitiveMode { .. } => ErrorCode::UnsupportedPrimitiveMode,
+            IoError::GltfInvalid { .. } => ErrorCode::GltfInvalid,
+            IoError::GlbInvalid(_) => ErrorCode::GlbInvalid,
         }
     }
 }
