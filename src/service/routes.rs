@@ -18,7 +18,7 @@ use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::{Json, Router};
 use futures_util::Stream;
-use meshsmooth_core::io::{self, Format, ReadLimits};
+use meshsmooth_core::io::Format;
 use metrics_exporter_prometheus::PrometheusHandle;
 use serde::Deserialize;
 use serde_json::Value;
@@ -578,12 +578,7 @@ async fn convert(
         .map_err(|_| Problem::new(Code::ShuttingDown, "the service is shutting down"))?;
     let converted = tokio::task::spawn_blocking(move || {
         let _permit = permit;
-        let unlimited = ReadLimits {
-            max_vertices: usize::MAX,
-            max_faces: usize::MAX,
-        };
-        let doc = io::read(&result.mesh, result.format, &unlimited)?;
-        io::write(&doc, doc.mesh.positions(), to)
+        meshsmooth_core::job::convert(&result.mesh, result.format, to)
     })
     .await
     .map_err(|_| Problem::internal("the conversion failed on an internal error"))?;

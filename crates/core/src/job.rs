@@ -185,6 +185,18 @@ pub fn run(
     input.smooth(request.params, format, progress, cancel)
 }
 
+/// Re-encodes a job's output `bytes` (in `from`) as `to`: the mesh alone,
+/// the way [`io::write`] writes a document in another format. The output
+/// was written by a job, so no reading limits apply.
+pub fn convert(bytes: &[u8], from: Format, to: Format) -> Result<Vec<u8>, IoError> {
+    let unlimited = ReadLimits {
+        max_vertices: usize::MAX,
+        max_faces: usize::MAX,
+    };
+    let doc = io::read(bytes, from, &unlimited)?;
+    io::write(&doc, doc.mesh.positions(), to)
+}
+
 /// The per-vertex results of a run as the writers take them.
 impl<'a> From<&'a PerVertex> for VertexResults<'a> {
     fn from(p: &'a PerVertex) -> Self {
