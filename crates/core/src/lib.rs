@@ -6,6 +6,7 @@
 //! that ties them together.
 
 pub mod error;
+pub mod fit;
 pub mod io;
 pub mod job;
 pub mod mesh;

@@ -10,9 +10,9 @@
 
 pub(crate) use crate::mesh::has_repeated_corner;
 use crate::mesh::{Mesh, Topology, vector_area};
-use crate::smoothing::frame::Frame;
-use crate::smoothing::normals::vertex_normal;
-use crate::smoothing::quadric_fit::{FitKind, QuadricFit, fit_quadric};
+use crate::fit::frame::Frame;
+use crate::fit::normals::vertex_normal;
+use crate::fit::quadric_fit::{FitKind, QuadricFit, fit_quadric};
 use glam::DVec3;
 
 /// Cosine of the angle between `a` and `b`; 1 (a 0° angle) when either is

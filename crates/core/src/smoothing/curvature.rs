@@ -1,11 +1,11 @@
 //! Step 5: mean and Gaussian curvature from the quadric fits (algorithm
 //! notes section 5). The formulas live on
-//! [`QuadricFit::curvature`](super::quadric_fit::QuadricFit::curvature);
+//! [`QuadricFit::curvature`](crate::fit::quadric_fit::QuadricFit::curvature);
 //! this file estimates them for a whole mesh without moving it.
 
-use super::frame::Frame;
+use crate::fit::frame::Frame;
 use super::neighbourhood::{Neighbourhoods, select_rings};
-use super::quadric_fit::{Facing, FitModel, fit_neighbours};
+use crate::fit::quadric_fit::{Facing, FitModel, fit_neighbours};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::{DVec3, Vec3};
 
@@ -16,7 +16,7 @@ pub type Curvatures = Vec<(f64, f64)>;
 /// `rings`-ring as [`select_rings`] chooses it (at most `max_points`
 /// points). 0 where the vertex has no usable normal; boundary vertices fit
 /// a plane ([`curvature_at`]). `normals` are the unit vertex normals of
-/// `positions` ([`vertex_normals_f32`](super::normals::vertex_normals_f32));
+/// `positions` ([`vertex_normals_f32`](crate::fit::normals::vertex_normals_f32));
 /// neighbours facing away by a cosine below `min_cos` are left out. The
 /// rings are walked and fitted vertex by vertex, never stored.
 pub fn vertex_curvatures(
@@ -38,7 +38,7 @@ pub fn vertex_curvatures(
 /// as [`vertex_curvatures`] computes it: 0 where the vertex has no
 /// normal, and 0 at boundary vertices (they fit a plane). `normals` are the
 /// unit vertex normals of `positions`
-/// ([`vertex_normals_f32`](super::normals::vertex_normals_f32)).
+/// ([`vertex_normals_f32`](crate::fit::normals::vertex_normals_f32)).
 pub fn curvature_at(
     topo: &Topology,
     positions: &[DVec3],

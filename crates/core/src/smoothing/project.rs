@@ -8,13 +8,13 @@
 //! count.
 
 use super::curvature::curvature_at;
-use super::frame::Frame;
+use crate::fit::frame::Frame;
 use super::neighbourhood::{CHUNK, ChunkWeights, HoodSource, NeighbourWeights, Neighbourhoods};
-use super::normals::{
+use crate::fit::normals::{
     face_vector_areas_f32, normal_from_areas, vertex_normal, vertex_normals_f32,
     vertex_normals_f32_by_faces,
 };
-use super::quadric_fit::{
+use crate::fit::quadric_fit::{
     Facing, FitHeight, FitKind, FitModel, fit_neighbours, fit_neighbours_weighted,
 };
 use crate::mesh::{Mesh, Topology, VertexKind};

@@ -7,7 +7,7 @@
 //! `rho^4 / R^3`) and flattened voxel plateaus bias inward. A single global
 //! offset removes the mean of that bias without touching the shape.
 
-use super::normals::vertex_normals;
+use crate::fit::normals::vertex_normals;
 use crate::mesh::{Mesh, Topology, signed_volume, sum_over_face_chunks};
 use glam::DVec3;
 use rayon::prelude::*;
