@@ -11,10 +11,11 @@
 //! the upload arrives (a bad file is refused before it is queued) and
 //! smooths on a worker thread.
 
+use crate::control::Progress;
 use crate::io::{
     self, Document, Format, IoError, ReadLimits, ReadOptions, VertexResults, WriteOptions,
 };
-use crate::pipeline::{self, PerVertex, Progress, SmoothError};
+use crate::pipeline::{self, PerVertex, SmoothError};
 use crate::report::{QualityReport, sha256_hex};
 use crate::{Mesh, Params};
 use std::sync::atomic::AtomicBool;

@@ -5,6 +5,7 @@
 //! [`quality`], the [`report`] that proves the result, and [`pipeline::run`]
 //! that ties them together.
 
+pub mod control;
 pub mod error;
 pub mod fit;
 pub mod io;
@@ -18,7 +19,8 @@ pub mod shapes;
 pub mod smoothing;
 mod sort;
 
+pub use control::{Cancelled, NoProgress, Progress, Stage};
 pub use error::{ErrorCode, MeshError};
 pub use mesh::{Mesh, Topology, VertexKind};
 pub use params::{Method, ParamError, Params};
-pub use pipeline::{Cancelled, NoProgress, Progress, SmoothError, SmoothOutput, Stage, run};
+pub use pipeline::{SmoothError, SmoothOutput, run};

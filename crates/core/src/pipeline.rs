@@ -1,7 +1,10 @@
 //! `run(mesh, &params, &progress, &cancel)`: the whole smoothing pipeline,
 //! one entry point shared by the CLI and the service.
 
+use crate::control::{Cancelled, Progress, Stage, check};
 use crate::error::ErrorCode;
+use crate::fit::normals::vertex_normals_f32_by_faces;
+use crate::fit::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length, signed_volume};
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
 use crate::quality::{
@@ -19,67 +22,14 @@ use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
 use crate::smoothing::initial::{EarlyStop, initial_passes, smooth_passes};
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::neighbourhood::release_walk_scratch;
-use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::smoothing::project::FitStats;
-use crate::fit::quadric_fit::FitModel;
 use crate::smoothing::volume::restore_volume;
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::DVec3;
 use rayon::prelude::*;
-use serde::Serialize;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 use thiserror::Error;
-
-/// Pipeline stages, in order, as reported to [`Progress`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Stage {
-    /// Topology and measures of the input.
-    Analyse,
-    /// Initial smoothing (fixed 2-ring fits), or the baseline method.
-    Initial,
-    /// Curvature estimation and labelling.
-    Label,
-    /// Adaptive smoothing (grown neighbourhoods).
-    Adaptive,
-    /// Quality fixes (twisted quads, short edges, sharp angles, folds).
-    Quality,
-    /// Measures of the output for the report.
-    Report,
-}
-
-impl Stage {
-    /// Stable snake_case name.
-    pub fn name(self) -> &'static str {
-        match self {
-            Stage::Analyse => "analyse",
-            Stage::Initial => "initial",
-            Stage::Label => "label",
-            Stage::Adaptive => "adaptive",
-            Stage::Quality => "quality",
-            Stage::Report => "report",
-        }
-    }
-}
-
-/// Receives progress from the pipeline; called from worker threads.
-pub trait Progress: Sync {
-    /// `fraction` in `[0, 1]` of the current `stage`.
-    fn update(&self, stage: Stage, fraction: f64);
-}
-
-/// A [`Progress`] that ignores every update.
-pub struct NoProgress;
-
-impl Progress for NoProgress {
-    fn update(&self, _: Stage, _: f64) {}
-}
-
-/// The run was cancelled through its flag.
-#[derive(Debug, Error, Clone, Copy, PartialEq, Eq)]
-#[error("the smoothing run was cancelled")]
-pub struct Cancelled;
 
 /// Why a run did not produce a result.
 #[derive(Debug, Error, Clone, PartialEq)]
@@ -127,16 +77,6 @@ pub struct SmoothOutput {
     pub report: QualityReport,
     /// Per-vertex results.
     pub per_vertex: PerVertex,
-}
-
-/// Checks `cancel` and returns [`Cancelled`] when it is raised.
-#[inline]
-pub fn check(cancel: &AtomicBool) -> Result<(), Cancelled> {
-    if cancel.load(Ordering::Relaxed) {
-        Err(Cancelled)
-    } else {
-        Ok(())
-    }
 }
 
 /// Which vertices may move: not isolated, not non-manifold, and not on the

@@ -8,11 +8,11 @@
 //! falls as the angle grows), so no `acos` runs in the hot loops. A corner
 //! with a zero-length side counts as a 0° angle (cosine 1).
 
-pub(crate) use crate::mesh::has_repeated_corner;
-use crate::mesh::{Mesh, Topology, vector_area};
 use crate::fit::frame::Frame;
 use crate::fit::normals::vertex_normal;
 use crate::fit::quadric_fit::{FitKind, QuadricFit, fit_quadric};
+pub(crate) use crate::mesh::has_repeated_corner;
+use crate::mesh::{Mesh, Topology, vector_area};
 use glam::DVec3;
 
 /// Cosine of the angle between `a` and `b`; 1 (a 0° angle) when either is

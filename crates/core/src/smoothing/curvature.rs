@@ -3,8 +3,8 @@
 //! [`QuadricFit::curvature`](crate::fit::quadric_fit::QuadricFit::curvature);
 //! this file estimates them for a whole mesh without moving it.
 
-use crate::fit::frame::Frame;
 use super::neighbourhood::{Neighbourhoods, select_rings};
+use crate::fit::frame::Frame;
 use crate::fit::quadric_fit::{Facing, FitModel, fit_neighbours};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use glam::{DVec3, Vec3};

@@ -3,13 +3,13 @@
 
 use super::curvature::{Curvatures, vertex_curvatures};
 use super::neighbourhood::{HoodSource, Neighbourhoods};
-use crate::fit::normals::vertex_normals_f32_by_faces;
 use super::project::{
     FitStats, Momentum, Refit, UNFITTED_DRIFT, fit_pass, step_limits, weighted_pass,
 };
+use crate::control::{Cancelled, check};
+use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
-use crate::pipeline::{Cancelled, check};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::sync::atomic::AtomicBool;

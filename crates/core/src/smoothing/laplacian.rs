@@ -10,8 +10,8 @@
 //! independently in parallel, so the result does not depend on the number
 //! of threads.
 
+use crate::control::{Cancelled, check};
 use crate::mesh::{Mesh, Topology, signed_volume};
-use crate::pipeline::{Cancelled, check};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::sync::atomic::AtomicBool;

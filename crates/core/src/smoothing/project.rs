@@ -8,8 +8,8 @@
 //! count.
 
 use super::curvature::curvature_at;
-use crate::fit::frame::Frame;
 use super::neighbourhood::{CHUNK, ChunkWeights, HoodSource, NeighbourWeights, Neighbourhoods};
+use crate::fit::frame::Frame;
 use crate::fit::normals::{
     face_vector_areas_f32, normal_from_areas, vertex_normal, vertex_normals_f32,
     vertex_normals_f32_by_faces,

@@ -6,8 +6,8 @@
 //! [`super::laplacian`].
 
 use super::laplacian::umbrella_step;
+use crate::control::{Cancelled, check};
 use crate::mesh::Topology;
-use crate::pipeline::{Cancelled, check};
 use glam::DVec3;
 use std::sync::atomic::AtomicBool;
 
