@@ -7,13 +7,12 @@ use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length, signed_volume};
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
-use crate::quality::{
-    defect_count, improve, mean_curvature_variation, measure_stage, mesh_statistics,
-};
+use crate::quality::{defect_count, improve};
 use crate::report::{CurvatureVariation, QualityReport, StageMeasures};
 use crate::report::{
     LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
 };
+use crate::report::{mean_curvature_variation, measure_stage, mesh_statistics};
 use crate::smoothing::adaptive::{
     AdaptiveNeighbourhoods, FLAT_MOMENTUM, FLAT_RING, GrowthRule, REFIT_TOLERANCE,
     adaptive_neighbourhoods, agreement_masks, flat_passes, is_refit_pass,

@@ -221,8 +221,9 @@ impl Cluster {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::quality::defect_count;
     use crate::quality::fixtures::{at, grid};
-    use crate::quality::{defect_count, measure_stage};
+    use crate::report::measure_stage;
 
     #[test]
     fn a_fold_of_two_vertices_goes_back_as_one() {

@@ -1,6 +1,7 @@
 //! Mesh-quality fixes of section 2.4 (algorithm notes section 8) and one of
-//! our own for folds (inverted faces), one file per fix, and the measures
-//! of the quality report (section 9).
+//! our own for folds (inverted faces), one file per fix. The measures of
+//! the quality report (section 9) are the report's
+//! ([`crate::report::measures`]).
 //!
 //! The fixes only move vertices (connectivity never changes), move only
 //! interior vertices, and keep a move only when it makes nothing worse: no
@@ -15,16 +16,14 @@
 //! number of threads.
 
 #[cfg(test)]
-mod fixtures;
+pub(crate) mod fixtures;
 pub mod inverted;
-mod local;
-pub mod measures;
+pub(crate) mod local;
 pub mod sharp_angle;
 pub mod short_edge;
 pub mod twisted;
 
 pub use inverted::{InvertedStats, fix_inverted_faces};
-pub use measures::{mean_curvature_variation, measure_stage, mesh_statistics};
 pub use sharp_angle::{SharpAngleStats, fix_sharp_angles};
 pub use short_edge::{ShortEdgeStats, fix_short_edges};
 pub use twisted::{TwistedStats, fix_twisted_quads};

@@ -464,10 +464,11 @@ impl Colouring {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::quality::fix_twisted_quads;
     use crate::quality::fixtures::{
         at, flattened_staircase, grid, min_split_angle, radially_projected_sphere,
     };
-    use crate::quality::{fix_twisted_quads, measure_stage};
+    use crate::report::measure_stage;
     use crate::shapes::CENTER_OFFSET;
 
     #[test]

@@ -257,7 +257,7 @@ fn along(polyline: &[DVec3], fraction: f64) -> DVec3 {
 mod tests {
     use super::*;
     use crate::quality::fixtures::{at, grid, min_split_angle};
-    use crate::quality::measure_stage;
+    use crate::report::measure_stage;
 
     #[test]
     fn a_short_edge_is_lengthened_on_the_surface() {

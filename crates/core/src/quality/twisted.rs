@@ -174,7 +174,7 @@ fn swap_with_twisted_neighbour(
 mod tests {
     use super::*;
     use crate::quality::fixtures::{at, grid};
-    use crate::quality::measure_stage;
+    use crate::report::measure_stage;
 
     #[test]
     fn a_swapped_pair_is_swapped_back() {

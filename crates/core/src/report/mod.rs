@@ -2,9 +2,13 @@
 //! serialisable to JSON and back. The schema is documented field by field in
 //! `docs/report.md` and versioned by [`SCHEMA_VERSION`].
 //!
-//! The measures are computed by [`crate::quality::measures`]; the quality
+//! The measures are computed by [`measures`]; the quality
 //! fixes return the statistics in [`QualityFixStats`]; the pipeline fills
 //! the rest.
+
+pub mod measures;
+
+pub use measures::{mean_curvature_variation, measure_stage, mesh_statistics};
 
 use crate::params::{Method, Params};
 use crate::quality::QualityFixStats;
@@ -139,7 +143,7 @@ pub struct CurvatureVariation {
 impl CurvatureVariation {
     /// The variation `mean` of a stage whose mean edge length is
     /// `mean_edge_length`
-    /// ([`mean_curvature_variation`](crate::quality::mean_curvature_variation)).
+    /// ([`mean_curvature_variation`](crate::report::mean_curvature_variation)).
     pub fn new(mean: f64, mean_edge_length: f64) -> CurvatureVariation {
         CurvatureVariation {
             mean,
@@ -457,7 +461,7 @@ mod tests {
     #[test]
     fn a_measured_report_round_trips_through_json() {
         use crate::mesh::Topology;
-        use crate::quality::{improve, measure_stage, mesh_statistics};
+        use crate::quality::improve;
         use crate::shapes::voxel_sphere;
         let (_, mesh) = voxel_sphere(4.0);
         let topo = Topology::build(&mesh);
