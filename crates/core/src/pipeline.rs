@@ -13,7 +13,7 @@ use crate::report::{
     LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
 };
 use crate::report::{mean_curvature_variation, measure_stage, mesh_statistics};
-use crate::smoothing::adaptive::{
+use crate::smoothing::adaptive::growth::{
     AdaptiveNeighbourhoods, FLAT_MOMENTUM, FLAT_RING, GrowthRule, REFIT_TOLERANCE,
     adaptive_neighbourhoods, agreement_masks, flat_passes, is_refit_pass,
 };

@@ -123,7 +123,7 @@ pub fn smooth_passes(
 /// out. They also keep their first fit's weights through the selective
 /// refits (unless a move on them failed): their neighbourhoods change
 /// shape too little for a refit to matter
-/// ([`adaptive::FLAT_RING`](super::adaptive::FLAT_RING) has the
+/// ([`adaptive::FLAT_RING`](super::adaptive::growth::FLAT_RING) has the
 /// measurements).
 #[derive(Debug, Clone, Copy)]
 pub struct EarlyStop<'a> {
@@ -232,7 +232,7 @@ pub fn stale_vertices(
 mod tests {
     use super::*;
     use crate::shapes;
-    use crate::smoothing::adaptive::{REFIT_TOLERANCE, is_refit_pass};
+    use crate::smoothing::adaptive::growth::{REFIT_TOLERANCE, is_refit_pass};
     use crate::smoothing::neighbourhood::push_thinned;
 
     /// `mesh`'s positions after the initial passes, as in the pipeline: the

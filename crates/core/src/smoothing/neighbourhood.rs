@@ -8,7 +8,7 @@
 //! grids, marching cubes and most writers number nearby vertices closely,
 //! so nearly every gap fits; a larger one takes an escape and 32 bits.
 
-use super::adaptive::BEAM_WIDTH;
+use super::adaptive::growth::BEAM_WIDTH;
 use crate::mesh::{RingWalker, Topology};
 use crate::sort::sort_short;
 use half::f16;

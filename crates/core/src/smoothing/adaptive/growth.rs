@@ -9,7 +9,7 @@
 //! reaching the next ring would not bias the projection by more than a bound
 //! (`rho^4 kappa^3 / 48`, the gap between a paraboloid and a sphere), and
 //! (d) `k < k_max`. The chosen neighbourhood is then thinned to at most
-//! `max_points` well-spread vertices ([`push_thinned`](super::neighbourhood::push_thinned)) so a fit's cost does
+//! `max_points` well-spread vertices ([`push_thinned`](crate::smoothing::neighbourhood::push_thinned)) so a fit's cost does
 //! not grow with `k`. Where growth is clear-cut (it reaches `k_max` with
 //! every test passed by a margin) a seed's outer rings serve its
 //! neighbours too ([`SHARED_FROM_RING`]), so the long walk is made once
@@ -19,7 +19,7 @@
 //!
 //! Not every pass fits anew ([`is_refit_pass`]): a fit's height is linear
 //! in its points' heights, so between refits a pass moves each vertex by the
-//! latest fit's linear weights ([`weighted_pass`](super::project::weighted_pass)),
+//! latest fit's linear weights ([`weighted_pass`](crate::smoothing::project::weighted_pass)),
 //! one weighted sum instead of a cubic fit. The frame coordinates and point
 //! weights the linear weights hold change little once the initial passes
 //! have taken the staircase out, and a refit only fits the vertices near
@@ -27,11 +27,11 @@
 //! neighbourhood grew to [`FLAT_RING`] rings move with momentum and stop
 //! after [`flat_passes`] of the passes.
 
-use super::label::{Label, agrees};
-use super::neighbourhood::{
+use crate::mesh::{RingWalker, Topology};
+use crate::smoothing::label::{Label, agrees};
+use crate::smoothing::neighbourhood::{
     Neighbourhoods, Thinning, pick_seeds, push_ring_sample, whole_inner_rings,
 };
-use crate::mesh::{RingWalker, Topology};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::ops::Range;
@@ -43,7 +43,7 @@ use std::sync::atomic::{AtomicU8, Ordering};
 pub const BEAM_WIDTH: usize = 12;
 
 /// A grown neighbourhood keeps its inner rings whole only while they hold
-/// at most `max_points / WHOLE_INNER_DIVISOR` points ([`push_thinned`](super::neighbourhood::push_thinned));
+/// at most `max_points / WHOLE_INNER_DIVISOR` points ([`push_thinned`](crate::smoothing::neighbourhood::push_thinned));
 /// the rest of the budget samples the outer rings, so a large ring spreads
 /// its fit over the whole disc. Measured (`examples/accuracy.rs`, cubic
 /// fits of 60 points, 16 passes): 4 instead of 2 brings the voxel sphere
@@ -56,7 +56,7 @@ pub const WHOLE_INNER_DIVISOR: usize = 4;
 pub const FIRST_REFIT_GAP: u32 = 4;
 
 /// True when adaptive pass `pass` (from 0) fits anew: passes 0, 4, 12, 28,
-/// ... ([`smooth_passes`](super::initial::smooth_passes) adds the last
+/// ... ([`smooth_passes`](crate::smoothing::initial::smooth_passes) adds the last
 /// pass). The others reuse the latest fit's linear weights. Measured
 /// (`examples/accuracy.rs`, 22 passes, RMS on the voxel sphere r=12, torus,
 /// ellipsoid, sphere r=40): refitting every pass 0.0330, 0.0426, 0.0407,
@@ -69,7 +69,7 @@ pub fn is_refit_pass(pass: u32) -> bool {
     pass.is_multiple_of(FIRST_REFIT_GAP) && (pass / FIRST_REFIT_GAP + 1).is_power_of_two()
 }
 
-/// Refits after the first are selective ([`smooth_passes`](super::initial::smooth_passes)):
+/// Refits after the first are selective ([`smooth_passes`](crate::smoothing::initial::smooth_passes)):
 /// a vertex fits anew only when it or a neighbour has moved more than this
 /// fraction of its mean input edge length since its latest fit (or that
 /// fit or a later move failed); the others keep moving by their weights.
@@ -109,11 +109,11 @@ pub const REFIT_TOLERANCE: f32 = 0.02;
 /// costs a full cubic fit a vertex on a large smooth surface (the
 /// benchmark sphere makes 1.1 fits a vertex instead of 2.2).
 ///
-/// [`EarlyStop`]: super::initial::EarlyStop
+/// [`EarlyStop`]: crate::smoothing::initial::EarlyStop
 pub const FLAT_RING: u8 = 15;
 
 /// The momentum of flat vertices ([`FLAT_RING`],
-/// [`Momentum`](super::project::Momentum)).
+/// [`Momentum`](crate::smoothing::project::Momentum)).
 pub const FLAT_MOMENTUM: f32 = 0.8;
 
 /// How many of the adaptive `passes` flat vertices make ([`FLAT_RING`]):
@@ -392,7 +392,7 @@ impl SeedGroup {
 }
 
 /// Walks vertex `v`'s first `rings` rings as growth does and appends them:
-/// its inner rings whole as [`push_thinned`](super::neighbourhood::push_thinned) keeps them, the others thinned
+/// its inner rings whole as [`push_thinned`](crate::smoothing::neighbourhood::push_thinned) keeps them, the others thinned
 /// to the quotas of `thinning` (its seed's). False, with `out` partly
 /// written, when `v` keeps all `rings` whole or its component ends first.
 fn push_near_rings(
