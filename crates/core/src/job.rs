@@ -5,7 +5,7 @@
 //!
 //! A job is read ([`Input::read`]: parsing with the parameters' reading
 //! options and welding, the input's SHA-256), then smoothed
-//! ([`Input::smooth`]: the [`pipeline`](crate::pipeline), the welding's
+//! ([`Input::smooth`]: the [`pipeline`], the welding's
 //! bookkeeping in the report, the per-vertex results, writing, the
 //! output's SHA-256). [`run`] does both in one call; the service reads when
 //! the upload arrives (a bad file is refused before it is queued) and

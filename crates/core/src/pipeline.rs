@@ -13,12 +13,12 @@ use crate::report::{
     LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
 };
 use crate::report::{mean_curvature_variation, measure_stage, mesh_statistics};
-use crate::smoothing::adaptive::growth::{
-    AdaptiveNeighbourhoods, FLAT_MOMENTUM, FLAT_RING, GrowthRule, REFIT_TOLERANCE,
-    adaptive_neighbourhoods, agreement_masks, flat_passes, is_refit_pass,
+use crate::smoothing::adaptive::{
+    AdaptiveNeighbourhoods, EarlyStop, FLAT_MOMENTUM, FLAT_RING, GrowthRule, REFIT_TOLERANCE,
+    adaptive_neighbourhoods, agreement_masks, flat_passes, is_refit_pass, smooth_passes,
 };
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
-use crate::smoothing::initial::{EarlyStop, initial_passes, smooth_passes};
+use crate::smoothing::initial::initial_passes;
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::neighbourhood::release_walk_scratch;
 use crate::smoothing::project::FitStats;

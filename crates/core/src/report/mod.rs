@@ -143,7 +143,7 @@ pub struct CurvatureVariation {
 impl CurvatureVariation {
     /// The variation `mean` of a stage whose mean edge length is
     /// `mean_edge_length`
-    /// ([`mean_curvature_variation`](crate::report::mean_curvature_variation)).
+    /// ([`mean_curvature_variation`]).
     pub fn new(mean: f64, mean_edge_length: f64) -> CurvatureVariation {
         CurvatureVariation {
             mean,

@@ -8,7 +8,6 @@
 //! grids, marching cubes and most writers number nearby vertices closely,
 //! so nearly every gap fits; a larger one takes an escape and 32 bits.
 
-use super::adaptive::growth::BEAM_WIDTH;
 use crate::mesh::{RingWalker, Topology};
 use crate::sort::sort_short;
 use half::f16;
@@ -423,48 +422,10 @@ impl Neighbourhoods {
     }
 }
 
-/// Seeds for the vertices of `range` (a group of chunks,
-/// [`Neighbourhoods::build_chunked`]): for each, the index in `range` of
-/// its seed, itself or a neighbour in `range`, so every vertex is at most
-/// one edge from its seed. In vertex order, each vertex not yet next to a
-/// seed makes a seed of whichever of itself and its neighbours in `range`
-/// is next to the most vertices without one (the last on ties): on a voxel
-/// sphere about a quarter of the vertices are seeds with ranges of 4096.
-pub fn pick_seeds(topo: &Topology, range: Range<usize>) -> Vec<u32> {
-    const NONE: u32 = u32::MAX;
-    let first = range.start;
-    let local = |j: u32| (j as usize).checked_sub(first).filter(|&l| l < range.len());
-    let mut seed = vec![NONE; range.len()];
-    let unseeded = |seed: &[u32], c: usize| {
-        usize::from(seed[c] == NONE)
-            + topo
-                .neighbors(first + c)
-                .iter()
-                .filter(|&&j| local(j).is_some_and(|l| seed[l] == NONE))
-                .count()
-    };
-    for v in 0..range.len() {
-        if seed[v] != NONE {
-            continue;
-        }
-        let (mut s, mut best) = (v, unseeded(&seed, v));
-        for l in topo.neighbors(first + v).iter().filter_map(|&j| local(j)) {
-            let c = unseeded(&seed, l);
-            if c > best || (c == best && l > s) {
-                (s, best) = (l, c);
-            }
-        }
-        seed[s] = s as u32;
-        for &j in topo.neighbors(first + s) {
-            if let Some(l) = local(j)
-                && seed[l] == NONE
-            {
-                seed[l] = s as u32;
-            }
-        }
-    }
-    seed
-}
+/// Beyond ring 2, rings are walked by [`RingWalker::grow_beam`] expanding
+/// at most this many vertices per ring: the candidates are a well-spread
+/// sample of each ring, so growth to ring `k` costs `O(k)`.
+pub const BEAM_WIDTH: usize = 12;
 
 /// Where a fitting pass takes each vertex's neighbours from.
 #[derive(Debug, Clone, Copy)]

@@ -422,6 +422,15 @@ fn step(topo: &Topology, positions: &[DVec3], v: usize, g: f64, stats: &mut FitS
     cut
 }
 
+/// Adds each vertex's move to its position.
+pub fn apply(positions: &mut [DVec3], moves: &[Vec3]) {
+    positions
+        .par_iter_mut()
+        .zip(moves)
+        .with_min_len(4096)
+        .for_each(|(p, m)| *p += m.as_dvec3());
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,46 +1,15 @@
-//! Step 7: adaptive neighbourhoods (paper section 2.3, algorithm notes
-//! section 7).
-//!
-//! Starting from the 2-ring, a vertex's neighbourhood grows ring by ring
-//! while (a) the vertices of the next ring carry the vertex's own label
-//! (up to a tolerated fraction, with a margin, see [`agrees`]), (b) the
-//! standard deviation of the scale-free mean curvature `H l` over the grown
-//! set does not rise (up to a tolerance) and stays below a bound, (c) a fit
-//! reaching the next ring would not bias the projection by more than a bound
-//! (`rho^4 kappa^3 / 48`, the gap between a paraboloid and a sphere), and
-//! (d) `k < k_max`. The chosen neighbourhood is then thinned to at most
-//! `max_points` well-spread vertices ([`push_thinned`](crate::smoothing::neighbourhood::push_thinned)) so a fit's cost does
-//! not grow with `k`. Where growth is clear-cut (it reaches `k_max` with
-//! every test passed by a margin) a seed's outer rings serve its
-//! neighbours too ([`SHARED_FROM_RING`]), so the long walk is made once
-//! for a few vertices.
-//! Connectivity never changes, so neighbourhoods are chosen once and reused
-//! by every adaptive pass.
-//!
-//! Not every pass fits anew ([`is_refit_pass`]): a fit's height is linear
-//! in its points' heights, so between refits a pass moves each vertex by the
-//! latest fit's linear weights ([`weighted_pass`](crate::smoothing::project::weighted_pass)),
-//! one weighted sum instead of a cubic fit. The frame coordinates and point
-//! weights the linear weights hold change little once the initial passes
-//! have taken the staircase out, and a refit only fits the vertices near
-//! which the surface has moved since ([`REFIT_TOLERANCE`]). Vertices whose
-//! neighbourhood grew to [`FLAT_RING`] rings move with momentum and stop
-//! after [`flat_passes`] of the passes.
+//! Growth of each vertex's neighbourhood, ring by ring, by the tests of
+//! [`GrowthRule`] (paper section 2.3); seeds' growth shared with their
+//! neighbours ([`super::seeds`]).
 
+use super::seeds::{ROBUST_SLACK, SEED_GROUP, SHARED_FROM_RING, pick_seeds, push_near_rings};
 use crate::mesh::{RingWalker, Topology};
 use crate::smoothing::label::{Label, agrees};
-use crate::smoothing::neighbourhood::{
-    Neighbourhoods, Thinning, pick_seeds, push_ring_sample, whole_inner_rings,
-};
+use crate::smoothing::neighbourhood::{BEAM_WIDTH, Neighbourhoods, Thinning, push_ring_sample};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::ops::Range;
 use std::sync::atomic::{AtomicU8, Ordering};
-
-/// Beyond ring 2, rings are walked by [`RingWalker::grow_beam`] expanding
-/// at most this many vertices per ring: the candidates are a well-spread
-/// sample of each ring, so growth to ring `k` costs `O(k)`.
-pub const BEAM_WIDTH: usize = 12;
 
 /// A grown neighbourhood keeps its inner rings whole only while they hold
 /// at most `max_points / WHOLE_INNER_DIVISOR` points ([`push_thinned`](crate::smoothing::neighbourhood::push_thinned));
@@ -50,77 +19,6 @@ pub const BEAM_WIDTH: usize = 12;
 /// r=40 from 0.0227 to 0.0212 and leaves the ellipsoid as it was; keeping
 /// no ring whole reaches 0.018 on the sphere but 0.056 on the ellipsoid.
 pub const WHOLE_INNER_DIVISOR: usize = 4;
-
-/// The gap between the first two refits of the adaptive passes; each later
-/// gap is twice the one before ([`is_refit_pass`]).
-pub const FIRST_REFIT_GAP: u32 = 4;
-
-/// True when adaptive pass `pass` (from 0) fits anew: passes 0, 4, 12, 28,
-/// ... ([`smooth_passes`](crate::smoothing::initial::smooth_passes) adds the last
-/// pass). The others reuse the latest fit's linear weights. Measured
-/// (`examples/accuracy.rs`, 22 passes, RMS on the voxel sphere r=12, torus,
-/// ellipsoid, sphere r=40): refitting every pass 0.0330, 0.0426, 0.0407,
-/// 0.0204; this schedule (4 refits) 0.0331, 0.0429, 0.0409, 0.0205; refits
-/// at the first and last pass only 0.0336, 0.0441, 0.0414, 0.0208. The
-/// largest difference in a vertex's position between every pass and this
-/// schedule, on the torus without volume restoration, is 0.002 voxel. A
-/// refit costs about 9 weighted passes.
-pub fn is_refit_pass(pass: u32) -> bool {
-    pass.is_multiple_of(FIRST_REFIT_GAP) && (pass / FIRST_REFIT_GAP + 1).is_power_of_two()
-}
-
-/// Refits after the first are selective ([`smooth_passes`](crate::smoothing::initial::smooth_passes)):
-/// a vertex fits anew only when it or a neighbour has moved more than this
-/// fraction of its mean input edge length since its latest fit (or that
-/// fit or a later move failed); the others keep moving by their weights.
-/// Where the surface has settled, a new fit would give the same weights.
-/// Measured (`examples/accuracy.rs`, RMS on the voxel sphere r=12, torus,
-/// ellipsoid, sphere r=40): every vertex refitted 0.0331, 0.0429, 0.0409,
-/// 0.0205; 0.02: 0.0332, 0.0431, 0.0408, 0.0205; 0.05: 0.0333, 0.0433,
-/// 0.0409, 0.0205. On the real meshes 0.02 stays close to refitting all
-/// (the WM voxel quads keep 12 inverted faces instead of 8, the WM
-/// marching cubes 3 instead of 5), 0.05 less so (spot_quadrangulated
-/// keeps 9 inverted faces instead of 3, the WM marching cubes 8, the
-/// neuron gains 13.9% in volume instead of 12.0%). At 0.02 the benchmark
-/// sphere of 228k vertices made about 1.3 fits a vertex after the first
-/// refit instead of 3, before its flat vertices kept their first fit
-/// ([`FLAT_RING`]): now about 0.1.
-pub const REFIT_TOLERANCE: f32 = 0.02;
-
-/// A vertex whose neighbourhood grew to at least this many rings is flat
-/// enough to converge with momentum and stop early ([`EarlyStop`],
-/// [`FLAT_MOMENTUM`], [`flat_passes`]). There the passes damp long
-/// staircase waves slowly but steadily (the voxel sphere r=40 still
-/// improves at 30 passes), while where the curvature changes each pass
-/// adds bias (the ellipsoid is best at 16 passes): flat vertices reach in
-/// 16 passes with momentum what plain passes reach in 22, and stop there.
-/// Measured (`examples/accuracy.rs`, RMS on the voxel sphere r=12, torus,
-/// ellipsoid, sphere r=40): 22 plain passes 0.0332, 0.0431, 0.0408,
-/// 0.0205; flat vertices (15 rings) with momentum 0.8 stopping after 16
-/// passes 0.0332, 0.0431, 0.0402, 0.0199 (marching cubes 0.0290, 0.0403,
-/// 0.0385, 0.0212); 16 rings: the same; momentum 0.5: sphere r=40 0.0204.
-/// Momentum on every vertex helps the spheres but biases the ellipsoid
-/// (0.0411 at 16 passes), plain over-relaxation by 1.8 diverges, and 16
-/// passes for every vertex lose the real brain meshes' quality (the WM
-/// voxel quads kept 26 inverted faces instead of 13); the real meshes are
-/// mostly far below 15 rings and keep all the passes. Flat vertices also
-/// keep their first fit ([`EarlyStop`]): refitting them at passes 4 and 12
-/// changes the figures above by at most 0.0002 (sphere r=40 0.0201) and
-/// costs a full cubic fit a vertex on a large smooth surface (the
-/// benchmark sphere makes 1.1 fits a vertex instead of 2.2).
-///
-/// [`EarlyStop`]: crate::smoothing::initial::EarlyStop
-pub const FLAT_RING: u8 = 15;
-
-/// The momentum of flat vertices ([`FLAT_RING`],
-/// [`Momentum`](crate::smoothing::project::Momentum)).
-pub const FLAT_MOMENTUM: f32 = 0.8;
-
-/// How many of the adaptive `passes` flat vertices make ([`FLAT_RING`]):
-/// 8 in 11 (16 of the default 22).
-pub fn flat_passes(passes: u32) -> u32 {
-    passes - passes * 3 / 11
-}
 
 /// How neighbourhoods may grow.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -288,48 +186,6 @@ pub fn adaptive_neighbourhoods(
     }
 }
 
-/// A vertex sharing its seed's neighbourhood walks its own rings below
-/// this one and takes the seed's thinned samples from this ring out
-/// ([`adaptive_neighbourhoods`]): the fit's near points, which weigh most,
-/// stay centred on the vertex, and the long walk out to `k_max` rings is
-/// made once per seed. A vertex shares when its seed (or, failing that,
-/// another seed next to it) carries its label and grew to `k_max` with
-/// every test passed with room to spare ([`ROBUST_SLACK`]), so the
-/// vertex's own growth would very likely have reached `k_max` too. The
-/// seeds cover every vertex within one edge and are about a quarter of the
-/// vertices of a voxel sphere ([`SEED_GROUP`]); on the benchmark sphere of
-/// 228k vertices 25% are seeds, 70% share and 4% grow themselves.
-/// Measured (`examples/accuracy.rs`, RMS on the voxel sphere r=12, torus,
-/// ellipsoid, sphere r=40): growing every vertex 0.0332, 0.0431, 0.0402,
-/// 0.0201; sharing from ring 6 (slack 0.5) 0.0332, 0.0431, 0.0406,
-/// 0.0203; from ring 5 (slack 0.3) 0.0332, 0.0431, 0.0404, 0.0203; from
-/// ring 4 the same within 0.0001; with the seed groups and the second
-/// seed, 0.0332, 0.0431, 0.0406, 0.0202. On one thread the label stage took 957
-/// ms growing every vertex, about 600 sharing from ring 6 and 565 from
-/// ring 5 (after faster ring walks). Sharing with every seed that grew to
-/// 8 rings regardless of its margins takes the ellipsoid to 0.0416 (the
-/// growth decisions there are close calls); seeds two edges away take
-/// sphere r=40 to 0.0212.
-pub const SHARED_FROM_RING: usize = 5;
-
-/// Seeds are picked among the vertices of a group of this many chunks of
-/// lists ([`Neighbourhoods::build_chunked`], [`pick_seeds`]): a vertex's
-/// seed lies in its group, and on a voxel sphere the rows of the next
-/// slice fall in the same group of 4096 vertices far more often than in
-/// the same chunk of 1024. Measured on the benchmark sphere of 228k
-/// vertices: seeds are 30.4% of the vertices with groups of 1 chunk, 26.6%
-/// with 2, 25.5% with 4, 24.5% with 8; groups of 4 take the label stage
-/// from 531 to 516 ms on one thread.
-pub const SEED_GROUP: usize = 4;
-
-/// A seed's growth is shared ([`SHARED_FROM_RING`]) only when every ring
-/// it accepted passed each test of [`GrowthRule`] within `1 - ROBUST_SLACK`
-/// of its bound (label disagreement, bias, the rise and the bound of the
-/// curvature spread). Measured as above, sharing from ring 6: slack 0.3,
-/// 0.5 and 0.6 give the ellipsoid 0.0405, 0.0406 and 0.0404 and share 61%,
-/// 57% and 53% of the benchmark sphere.
-pub const ROBUST_SLACK: f64 = 0.3;
-
 /// What a seed's growth left in its [`SeedGroup`].
 #[derive(Clone)]
 struct Grown {
@@ -389,41 +245,6 @@ impl SeedGroup {
             lists,
         }
     }
-}
-
-/// Walks vertex `v`'s first `rings` rings as growth does and appends them:
-/// its inner rings whole as [`push_thinned`](crate::smoothing::neighbourhood::push_thinned) keeps them, the others thinned
-/// to the quotas of `thinning` (its seed's). False, with `out` partly
-/// written, when `v` keeps all `rings` whole or its component ends first.
-fn push_near_rings(
-    topo: &Topology,
-    v: usize,
-    w: &mut RingWalker,
-    rings: usize,
-    whole_inner: usize,
-    thinning: &Thinning,
-    out: &mut Vec<u32>,
-) -> bool {
-    w.start(topo, v);
-    for r in 0..rings {
-        let beam = if r < 2 { usize::MAX } else { BEAM_WIDTH };
-        if w.grow_beam(topo, beam).is_empty() {
-            return false;
-        }
-    }
-    let kept_rings = whole_inner_rings(w, rings, whole_inner);
-    if kept_rings == rings {
-        return false;
-    }
-    for r in 1..=rings {
-        let quota = if r <= kept_rings {
-            usize::MAX
-        } else {
-            usize::from(thinning.quota[r])
-        };
-        push_ring_sample(w.ring(r), quota, out);
-    }
-    true
 }
 
 /// The outcome of one vertex's growth ([`grow`]).
@@ -889,11 +710,5 @@ mod tests {
             points * 10 >= alone * 9,
             "{points} points shared, {alone} alone"
         );
-    }
-
-    #[test]
-    fn refits_double_their_gap() {
-        let refits: Vec<u32> = (0..100).filter(|&p| is_refit_pass(p)).collect();
-        assert_eq!(refits, [0, 4, 12, 28, 60]);
     }
 }
