@@ -9,6 +9,8 @@ use crate::error::ErrorCode;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+pub use crate::quality::QualityParams;
+
 /// Which smoother to run.
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -176,37 +178,6 @@ impl Default for Params {
             vertex_results: false,
             quality: QualityParams::default(),
             baseline: BaselineParams::default(),
-        }
-    }
-}
-
-/// Parameters of the quality-improvement stage (section 2.4).
-#[cfg_attr(feature = "schema", derive(utoipa::ToSchema), schema(default))]
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct QualityParams {
-    /// Run the quality fixes. Default true.
-    pub enabled: bool,
-    /// An edge shorter than this fraction of the mean edge length is short.
-    /// Default 0.2; range 0..=1.
-    pub short_edge_fraction: f64,
-    /// A triangle-split angle below this (degrees) is sharp and triggers
-    /// angle-based smoothing. Default 20: a margin above the 15° floor the
-    /// fixes must keep; on the voxel and marching-cubes test shapes it
-    /// leaves no angle below 20° at less than half the cost of 25°.
-    /// Range 0..=60.
-    pub sharp_angle_deg: f64,
-    /// Most sweeps of the sharp-angle fix. Default 10; range 0..=100.
-    pub max_sweeps: u32,
-}
-
-impl Default for QualityParams {
-    fn default() -> Self {
-        QualityParams {
-            enabled: true,
-            short_edge_fraction: 0.2,
-            sharp_angle_deg: 20.0,
-            max_sweeps: 10,
         }
     }
 }
