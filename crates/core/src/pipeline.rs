@@ -1,5 +1,7 @@
-//! `run(mesh, &params, &progress, &cancel)`: the whole smoothing pipeline,
-//! one entry point shared by the CLI and the service.
+//! `run(mesh, &params, &progress, &cancel)`: the whole smoothing pipeline
+//! on a mesh, under the job layer ([`crate::job`]) that reads and writes
+//! the files: analyse, smooth (Wang-Yu's initial, label and adaptive
+//! stages, or a baseline), fix the quality, measure, and the report.
 
 use crate::control::{Cancelled, Progress, Stage, check};
 use crate::error::ErrorCode;
@@ -13,18 +15,14 @@ use crate::report::{
     LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
 };
 use crate::report::{mean_curvature_variation, measure_stage, mesh_statistics};
-use crate::smoothing::adaptive::{
-    AdaptiveNeighbourhoods, EarlyStop, FLAT_MOMENTUM, FLAT_RING, GrowthRule, REFIT_TOLERANCE,
-    adaptive_neighbourhoods, agreement_masks, flat_passes, is_refit_pass, smooth_passes,
-};
+use crate::smoothing::adaptive::{GrowthRule, PassSettings, adaptive_passes, grow_neighbourhoods};
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
 use crate::smoothing::initial::initial_passes;
 use crate::smoothing::label::{Label, label};
-use crate::smoothing::neighbourhood::release_walk_scratch;
 use crate::smoothing::project::FitStats;
 use crate::smoothing::volume::restore_volume;
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -91,178 +89,154 @@ pub fn movable_mask(topo: &Topology, boundary: BoundaryRule) -> Vec<bool> {
         .collect()
 }
 
+/// A smoothing run's inputs, shared by its stages.
+#[derive(Clone, Copy)]
+struct Run<'a> {
+    mesh: &'a Mesh,
+    topo: &'a Topology,
+    /// [`movable_mask`].
+    movable: &'a [bool],
+    params: &'a Params,
+    progress: &'a dyn Progress,
+    cancel: &'a AtomicBool,
+}
+
+/// Milliseconds per stage, summed over the places a stage is timed.
+#[derive(Default)]
+struct Timings(Vec<(Stage, f64)>);
+
+impl Timings {
+    /// Runs `f`, adding its time to `stage`.
+    fn time<T>(&mut self, stage: Stage, f: impl FnOnce() -> T) -> T {
+        let t = Instant::now();
+        let value = f();
+        self.add(stage, ms(t));
+        value
+    }
+
+    fn add(&mut self, stage: Stage, ms: f64) {
+        match self.0.iter_mut().find(|t| t.0 == stage) {
+            Some(t) => t.1 += ms,
+            None => self.0.push((stage, ms)),
+        }
+    }
+
+    /// One entry per stage, in pipeline order.
+    fn into_report(mut self) -> Vec<StageTiming> {
+        self.0.sort_by_key(|t| t.0);
+        self.0
+            .into_iter()
+            .map(|(stage, ms)| StageTiming {
+                stage: stage.name().to_string(),
+                ms,
+            })
+            .collect()
+    }
+}
+
+/// A restoration offset larger than this fraction of the mean edge length
+/// after the adaptive passes is no smoothing bias to undo: the volume is
+/// left as it is (and a warning says so).
+const MAX_VOLUME_OFFSET: f64 = 0.5;
+
+/// After the quality fixes, which slide vertices over their fits, the
+/// volume is restored again by an offset of at most this fraction of the
+/// mean edge length: a small correction that must fold or twist no face.
+const MAX_VOLUME_REOFFSET: f64 = 0.1;
+
+/// A relative volume change left below this counts as restored.
+const VOLUME_RESTORED: f64 = 1e-6;
+
+/// A final relative volume change beyond this (half a percent) is worth a
+/// warning when the volume was to be preserved.
+const VOLUME_WARNING: f64 = 0.005;
+
 /// Intermediate results of the Wang-Yu stages.
-#[derive(Debug, Clone)]
-pub struct WangYuRun {
+struct WangYuRun {
     /// The input's mean curvature variation
     /// ([`mean_curvature_variation`]), from the 2-ring quadric fits of the
     /// first initial pass (the estimator of [`WangYuRun::curvature`]).
-    pub input_curvature_variation: f64,
+    input_curvature_variation: f64,
     /// Measures after initial smoothing.
-    pub initial: StageMeasures,
+    initial: StageMeasures,
     /// Positions after adaptive smoothing (and volume restoration).
-    pub adaptive: Vec<DVec3>,
+    adaptive: Vec<DVec3>,
     /// `(H, K)` per vertex of `adaptive`, from 2-ring quadric fits.
-    pub curvature: Curvatures,
+    curvature: Curvatures,
     /// Label per vertex (from the curvature after initial smoothing).
-    pub labels: Vec<Label>,
+    labels: Vec<Label>,
     /// Final ring size per vertex.
-    pub ring: Vec<u8>,
+    ring: Vec<u8>,
     /// Fit statistics of the initial passes.
-    pub initial_fits: FitStats,
+    initial_fits: FitStats,
     /// Fit statistics of the adaptive passes.
-    pub adaptive_fits: FitStats,
+    adaptive_fits: FitStats,
     /// Offset along the normals applied to restore the volume (0 if none).
-    pub volume_offset: f64,
+    volume_offset: f64,
     /// Relative volume change left when restoring the volume was asked for
     /// but refused (the offset needed was too large or did not converge).
-    pub volume_not_restored: Option<f64>,
-    /// Milliseconds per stage.
-    pub timings_ms: Vec<(Stage, f64)>,
+    volume_not_restored: Option<f64>,
 }
 
 /// Initial smoothing, labelling and adaptive smoothing with volume
 /// restoration (paper sections 2.2-2.3), without the quality fixes.
-pub fn wang_yu(
-    mesh: &Mesh,
-    topo: &Topology,
-    movable: &[bool],
-    params: &Params,
-    progress: &dyn Progress,
-    cancel: &AtomicBool,
-) -> Result<WangYuRun, Cancelled> {
-    let mut timings_ms = Vec::new();
-    let max_points = params.max_fit_points as usize;
-    let min_cos = params.min_normal_cos();
-    let t = Instant::now();
+fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
+    let Run {
+        mesh,
+        topo,
+        movable,
+        params,
+        progress,
+        cancel,
+    } = *run;
     let mut positions = mesh.positions().to_vec();
-    let passes = params.initial_passes;
-    let (initial_fits, input_curvature) = initial_passes(
-        mesh,
-        topo,
-        &mut positions,
-        movable,
-        max_points,
-        min_cos,
-        passes,
-        cancel,
-        |p| progress.update(Stage::Initial, p as f64 / passes.max(1) as f64),
-    )?;
-    let input_curvature_variation = mean_curvature_variation(topo, &input_curvature);
-    drop(input_curvature);
-    timings_ms.push((Stage::Initial, ms(t)));
-    let t = Instant::now();
-    let initial = measure_stage(
-        mesh,
-        topo,
-        &positions,
-        mesh.positions(),
-        None,
-        params.quality.short_edge_fraction,
-    );
-    timings_ms.push((Stage::Report, ms(t)));
-
-    let t = Instant::now();
-    check(cancel)?;
-    // The curvature rings are used once: walked and fitted vertex by
-    // vertex, never stored (as lists they would be the run's peak memory).
-    let facing_normals = vertex_normals_f32_by_faces(mesh, topo, &positions);
-    let hk = vertex_curvatures(
-        topo,
-        &positions,
-        &facing_normals,
-        params.curvature_ring,
-        max_points,
-        min_cos,
-    );
-
-    let l = mean_edge_length(mesh, &positions);
-    let labels: Vec<Label> = hk
-        .par_iter()
-        .map(|&(h, k)| label(h, k, l, params.tolerance_h, params.tolerance_k))
-        .collect();
-    // Single precision: growth compares spreads of about 0.005.
-    let h_scaled: Vec<f32> = hk.par_iter().map(|&(h, _)| (h * l) as f32).collect();
-    let rule = GrowthRule {
-        k_max: params.k_max,
-        max_points,
-        std_bound: params.curvature_std_bound,
-        std_tolerance: params.std_tolerance,
-        bias_bound: params.bias_bound,
-        edge_length: l,
-        tolerance_h: params.tolerance_h,
-        tolerance_k: params.tolerance_k,
-        label_margin: params.label_margin,
-        label_disagreement: params.label_disagreement,
-    };
-    let agreement = agreement_masks(&hk, &rule);
-    drop(hk);
-    let AdaptiveNeighbourhoods { hoods, ring } = adaptive_neighbourhoods(
-        topo,
-        &positions,
-        &labels,
-        &agreement,
-        &h_scaled,
-        &facing_normals,
-        rule,
-    );
-    // Free what growth needed before the passes allocate theirs.
-    drop((h_scaled, facing_normals, agreement));
-    release_walk_scratch();
-    release_free_memory();
-    timings_ms.push((Stage::Label, ms(t)));
-    progress.update(Stage::Label, 1.0);
-
-    let t = Instant::now();
-    let passes = params.adaptive_passes;
-    let flat: Vec<bool> = ring.par_iter().map(|&k| k >= FLAT_RING).collect();
-    let adaptive_fits = smooth_passes(
-        mesh,
-        topo,
-        &mut positions,
-        &hoods,
-        movable,
-        match params.adaptive_fit {
-            AdaptiveFit::Cubic => FitModel::Cubic,
-            AdaptiveFit::Quadric => FitModel::Quadric,
-        },
-        min_cos,
-        passes,
-        is_refit_pass,
-        Some(REFIT_TOLERANCE),
-        Some(EarlyStop {
-            vertices: &flat,
-            momentum: FLAT_MOMENTUM,
-            passes: flat_passes(passes),
-        }),
-        cancel,
-        |p| progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64),
-    )?;
-    drop((hoods, flat));
-    let mut volume_offset = 0.0;
-    let mut volume_not_restored = None;
-    if params.preserve_volume && topo.num_boundary_edges() == 0 {
-        let target = mesh.signed_volume();
-        // More than half an edge length is no smoothing bias to undo.
-        let max_offset = 0.5 * mean_edge_length(mesh, &positions);
-        volume_offset = restore_volume(
+    let (initial_fits, input_curvature_variation) =
+        timings.time(Stage::Initial, || initial_stage(run, &mut positions))?;
+    let initial = timings.time(Stage::Report, || {
+        measure_stage(
             mesh,
             topo,
-            &mut positions,
-            movable,
-            target,
-            max_offset,
-            |_| true,
+            &positions,
+            mesh.positions(),
+            None,
+            params.quality.short_edge_fraction,
+        )
+    });
+    check(cancel)?;
+    let (labels, curvature, normals, edge_length) =
+        timings.time(Stage::Label, || label_stage(run, &positions));
+    progress.update(Stage::Label, 1.0);
+
+    let (adaptive_fits, ring) = timings.time(Stage::Adaptive, || {
+        let grown = grow_neighbourhoods(
+            topo,
+            &positions,
+            &labels,
+            curvature,
+            normals,
+            growth_rule(params, edge_length),
         );
-        let change = (signed_volume(mesh, &positions) - target) / target.abs();
-        if volume_offset == 0.0 && change.abs() > 1e-6 {
-            volume_not_restored = Some(change);
-        }
-    }
-    timings_ms.push((Stage::Adaptive, ms(t)));
-    let t = Instant::now();
-    let curvature = stage_curvature(mesh, topo, &positions, params);
-    timings_ms.push((Stage::Report, ms(t)));
+        release_free_memory();
+        let passes = params.adaptive_passes;
+        let settings = PassSettings {
+            movable,
+            passes,
+            model: match params.adaptive_fit {
+                AdaptiveFit::Cubic => FitModel::Cubic,
+                AdaptiveFit::Quadric => FitModel::Quadric,
+            },
+            min_cos: params.min_normal_cos(),
+        };
+        adaptive_passes(mesh, topo, &mut positions, grown, settings, cancel, |p| {
+            progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64)
+        })
+    })?;
+    let (volume_offset, volume_not_restored) = timings.time(Stage::Adaptive, || {
+        restore_after_passes(run, &mut positions)
+    });
+    let curvature = timings.time(Stage::Report, || {
+        stage_curvature(mesh, topo, &positions, params)
+    });
     Ok(WangYuRun {
         input_curvature_variation,
         initial,
@@ -274,8 +248,93 @@ pub fn wang_yu(
         adaptive_fits,
         volume_offset,
         volume_not_restored,
-        timings_ms,
     })
+}
+
+/// The initial passes (paper section 2.2) on `positions`: their fit
+/// statistics and the input's mean curvature variation, from the first
+/// pass's fits.
+fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), Cancelled> {
+    let passes = run.params.initial_passes;
+    let (fits, input_curvature) = initial_passes(
+        run.mesh,
+        run.topo,
+        positions,
+        run.movable,
+        run.params.max_fit_points as usize,
+        run.params.min_normal_cos(),
+        passes,
+        run.cancel,
+        |p| {
+            run.progress
+                .update(Stage::Initial, p as f64 / passes.max(1) as f64)
+        },
+    )?;
+    Ok((fits, mean_curvature_variation(run.topo, &input_curvature)))
+}
+
+/// Curvature and labels after the initial passes (paper section 2.3,
+/// Table 2): the labels, the curvature `(H, K)` and facing normals growth
+/// needs, and the mean edge length that scales them. The curvature rings
+/// are walked and fitted vertex by vertex, never stored (as lists they
+/// would be the run's peak memory).
+fn label_stage(run: &Run, positions: &[DVec3]) -> (Vec<Label>, Curvatures, Vec<Vec3>, f64) {
+    let params = run.params;
+    let normals = vertex_normals_f32_by_faces(run.mesh, run.topo, positions);
+    let curvature = vertex_curvatures(
+        run.topo,
+        positions,
+        &normals,
+        params.curvature_ring,
+        params.max_fit_points as usize,
+        params.min_normal_cos(),
+    );
+    let l = mean_edge_length(run.mesh, positions);
+    let labels = curvature
+        .par_iter()
+        .map(|&(h, k)| label(h, k, l, params.tolerance_h, params.tolerance_k))
+        .collect();
+    (labels, curvature, normals, l)
+}
+
+/// The growth rule of `params` on a surface of mean edge length `l`.
+fn growth_rule(params: &Params, edge_length: f64) -> GrowthRule {
+    GrowthRule {
+        k_max: params.k_max,
+        max_points: params.max_fit_points as usize,
+        std_bound: params.curvature_std_bound,
+        std_tolerance: params.std_tolerance,
+        bias_bound: params.bias_bound,
+        edge_length,
+        tolerance_h: params.tolerance_h,
+        tolerance_k: params.tolerance_k,
+        label_margin: params.label_margin,
+        label_disagreement: params.label_disagreement,
+    }
+}
+
+/// Restores the enclosed volume after the adaptive passes when asked and
+/// the mesh is closed: the offset applied, and the relative change left
+/// when the restoration was refused.
+fn restore_after_passes(run: &Run, positions: &mut [DVec3]) -> (f64, Option<f64>) {
+    let Run { mesh, topo, .. } = *run;
+    if !run.params.preserve_volume || topo.num_boundary_edges() != 0 {
+        return (0.0, None);
+    }
+    let target = mesh.signed_volume();
+    let max_offset = MAX_VOLUME_OFFSET * mean_edge_length(mesh, positions);
+    let offset = restore_volume(
+        mesh,
+        topo,
+        positions,
+        run.movable,
+        target,
+        max_offset,
+        |_| true,
+    );
+    let change = (signed_volume(mesh, positions) - target) / target.abs();
+    let refused = offset == 0.0 && change.abs() > VOLUME_RESTORED;
+    (offset, refused.then_some(change))
 }
 
 /// The curvature a stage reports (and the run's per-vertex result): from
@@ -322,6 +381,29 @@ fn ms(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
 }
 
+/// What the smoothing stage gives the rest of the run.
+struct Smoothed {
+    positions: Vec<DVec3>,
+    /// Labels as numbers (empty for the baselines).
+    labels: Vec<u8>,
+    /// The curvature at `positions`, when the stage measured it.
+    curvature: Option<Curvatures>,
+    /// Whether a warning already said the volume could not be restored.
+    volume_warned: bool,
+}
+
+impl Smoothed {
+    /// The result of a baseline smoother: positions alone.
+    fn plain(positions: Vec<DVec3>) -> Self {
+        Smoothed {
+            positions,
+            labels: Vec::new(),
+            curvature: None,
+            volume_warned: false,
+        }
+    }
+}
+
 /// Smooths `mesh` with `params` and measures the result. Never changes
 /// connectivity: the output has one position per input vertex, in order.
 ///
@@ -339,12 +421,105 @@ pub fn run(
     let start = Instant::now();
     let span = tracing::info_span!("smooth", vertices = mesh.num_vertices(), faces = mesh.num_faces(), method = ?params.method);
     let _enter = span.enter();
-    let mut timings = Vec::new();
-    let input = mesh.positions();
-    let fraction = params.quality.short_edge_fraction;
-
-    let t = Instant::now();
+    let mut timings = Timings::default();
     progress.update(Stage::Analyse, 0.0);
+    let (topo, movable, mut report) = timings.time(Stage::Analyse, || analyse(mesh, params));
+    progress.update(Stage::Analyse, 1.0);
+    check(cancel)?;
+    let run = Run {
+        mesh,
+        topo: &topo,
+        movable: &movable,
+        params,
+        progress,
+        cancel,
+    };
+    let smoothed = match params.method {
+        Method::WangYu => {
+            let r = {
+                let _s = tracing::info_span!("wang_yu").entered();
+                wang_yu(&run, &mut timings)?
+            };
+            timings.time(Stage::Report, || report_wang_yu(&run, &mut report, r))
+        }
+        Method::Laplacian | Method::Taubin => {
+            let positions = timings.time(Stage::Initial, || {
+                let _s = tracing::info_span!("baseline").entered();
+                baseline(mesh, &topo, &movable, params, cancel)
+            })?;
+            report.stages.initial = Some(measure_stage(
+                mesh,
+                &topo,
+                &positions,
+                mesh.positions(),
+                None,
+                params.quality.short_edge_fraction,
+            ));
+            Smoothed::plain(positions)
+        }
+    };
+    let Smoothed {
+        mut positions,
+        labels,
+        curvature,
+        volume_warned,
+    } = smoothed;
+    // The smoothing stage's curvature is the final stage's when no quality
+    // fix moves a vertex in between.
+    let unmoved_curvature = curvature.filter(|_| !params.quality.enabled);
+    check(cancel)?;
+    if params.quality.enabled {
+        timings.time(Stage::Quality, || {
+            quality_stage(&run, &mut positions, &mut report)
+        });
+    }
+    check(cancel)?;
+
+    let curvature = timings.time(Stage::Report, || {
+        let curvature =
+            unmoved_curvature.unwrap_or_else(|| stage_curvature(mesh, &topo, &positions, params));
+        report.stages.final_stage = Some(measure_stage(
+            mesh,
+            &topo,
+            &positions,
+            mesh.positions(),
+            Some(&curvature),
+            params.quality.short_edge_fraction,
+        ));
+        curvature
+    });
+    progress.update(Stage::Report, 1.0);
+    final_warnings(params, &mut report, volume_warned);
+
+    report.timings = timings.into_report();
+    report.total_ms = ms(start);
+    Ok(SmoothOutput {
+        per_vertex: PerVertex::new(mesh.positions(), &positions, labels, &curvature),
+        positions,
+        report,
+    })
+}
+
+impl PerVertex {
+    /// The results at `positions` (from `input`).
+    fn new(input: &[DVec3], positions: &[DVec3], label: Vec<u8>, curvature: &Curvatures) -> Self {
+        PerVertex {
+            label,
+            mean_curvature: curvature.iter().map(|c| c.0).collect(),
+            gaussian_curvature: curvature.iter().map(|c| c.1).collect(),
+            displacement: positions
+                .iter()
+                .zip(input)
+                .map(|(a, b)| a.distance(*b))
+                .collect(),
+        }
+    }
+}
+
+/// The analyse stage: topology, the movable vertices, and a report with
+/// the mesh statistics and the input's measures.
+fn analyse(mesh: &Mesh, params: &Params) -> (Topology, Vec<bool>, QualityReport) {
+    let input = mesh.positions();
     let topo = Topology::build(mesh);
     let movable = movable_mask(&topo, params.boundary);
     // Wang-Yu's first initial pass fits the input's 2-rings anyway: the
@@ -361,142 +536,111 @@ pub fn run(
                 input,
                 input,
                 input_curvature.as_deref(),
-                fraction,
+                params.quality.short_edge_fraction,
             )
         },
     );
     let mut report = QualityReport::new(statistics, Reproducibility::new(params));
     report.stages.input = Some(input_measures);
-    drop(input_curvature);
-    timings.push((Stage::Analyse, ms(t)));
-    progress.update(Stage::Analyse, 1.0);
-    check(cancel)?;
+    (topo, movable, report)
+}
 
-    // Set when the adaptive stage already reported an unrestored volume.
-    let mut volume_warned = false;
-    let (mut positions, labels, adaptive_curvature) = match params.method {
-        Method::WangYu => {
-            let r = {
-                let _s = tracing::info_span!("wang_yu").entered();
-                wang_yu(mesh, &topo, &movable, params, progress, cancel)?
-            };
-            let t = Instant::now();
-            if let Some(stage) = report.stages.input.as_mut() {
-                stage.curvature_variation = Some(CurvatureVariation::new(
-                    r.input_curvature_variation,
-                    stage.mean_edge_length,
-                ));
-            }
-            report.stages.initial = Some(r.initial);
-            report.stages.adaptive = Some(measure_stage(
-                mesh,
-                &topo,
-                &r.adaptive,
-                input,
-                Some(&r.curvature),
-                fraction,
-            ));
-            report.wang_yu = Some(WangYuSummary {
-                labels: LabelCounts::from_labels(&r.labels),
-                ring_size_histogram: ring_size_histogram(&r.ring),
-                initial_fits: r.initial_fits.into(),
-                adaptive_fits: r.adaptive_fits.into(),
-                volume_offset: r.volume_offset,
-            });
-            if let Some(change) = r.volume_not_restored {
-                volume_warned = true;
-                report.warnings.push(format!(
-                    "the enclosed volume changed by {:+.2}% and could not be restored: a \
-                     uniform offset of at most half an edge length does not bring it back (the mesh may be \
-                     too coarse or too thin for quadric fitting, or the volume restoration \
-                     cannot undo a collapse)",
-                    100.0 * change
-                ));
-            }
-            timings.extend(r.timings_ms.iter().copied());
-            timings.push((Stage::Report, ms(t)));
-            let labels = r.labels.iter().map(|&l| l as u8).collect();
-            (r.adaptive, labels, Some(r.curvature))
-        }
-        Method::Laplacian | Method::Taubin => {
-            let t = Instant::now();
-            let positions = {
-                let _s = tracing::info_span!("baseline").entered();
-                baseline(mesh, &topo, &movable, params, cancel)?
-            };
-            timings.push((Stage::Initial, ms(t)));
-            report.stages.initial = Some(measure_stage(
-                mesh, &topo, &positions, input, None, fraction,
-            ));
-            (positions, Vec::new(), None)
-        }
-    };
-    // The adaptive stage's curvature is the final stage's when no quality
-    // fix moves a vertex in between.
-    let unmoved_curvature = adaptive_curvature.filter(|_| !params.quality.enabled);
-    check(cancel)?;
-
-    if params.quality.enabled {
-        let t = Instant::now();
-        let _s = tracing::info_span!("quality").entered();
-        progress.update(Stage::Quality, 0.0);
-        report.quality_fixes = Some(improve(
-            mesh,
-            &topo,
-            &mut positions,
-            input,
-            &params.quality,
-            params.min_normal_cos(),
+/// Puts the Wang-Yu stages' results in `report` (the input's curvature
+/// variation, the initial and adaptive stages, the summary, a warning
+/// when the volume could not be restored).
+fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smoothed {
+    if let Some(stage) = report.stages.input.as_mut() {
+        stage.curvature_variation = Some(CurvatureVariation::new(
+            r.input_curvature_variation,
+            stage.mean_edge_length,
         ));
-        // The fixes slide vertices over their fitted quadrics, which shifts
-        // the volume a little; restore it again with an offset of at most a
-        // tenth of an edge, kept only if it folds or twists no face.
-        if let Some(summary) = report.wang_yu.as_mut()
-            && params.preserve_volume
-            && topo.num_boundary_edges() == 0
-            && summary.volume_offset != 0.0
-        {
-            let defects = defect_count(mesh, &positions, input);
-            let max_offset = 0.1 * mean_edge_length(mesh, &positions);
-            let target = mesh.signed_volume();
-            summary.volume_offset += restore_volume(
-                mesh,
-                &topo,
-                &mut positions,
-                &movable,
-                target,
-                max_offset,
-                |moved| defect_count(mesh, moved, input) <= defects,
-            );
-        }
-        timings.push((Stage::Quality, ms(t)));
-        progress.update(Stage::Quality, 1.0);
     }
-    check(cancel)?;
-
-    let t = Instant::now();
-    let curvature =
-        unmoved_curvature.unwrap_or_else(|| stage_curvature(mesh, &topo, &positions, params));
-    report.stages.final_stage = Some(measure_stage(
-        mesh,
-        &topo,
-        &positions,
-        input,
-        Some(&curvature),
-        fraction,
+    report.stages.initial = Some(r.initial);
+    report.stages.adaptive = Some(measure_stage(
+        run.mesh,
+        run.topo,
+        &r.adaptive,
+        run.mesh.positions(),
+        Some(&r.curvature),
+        run.params.quality.short_edge_fraction,
     ));
-    timings.push((Stage::Report, ms(t)));
-    progress.update(Stage::Report, 1.0);
-    let final_change = report
-        .stages
-        .final_stage
-        .as_ref()
-        .and_then(|s| s.volume)
-        .and_then(|v| v.relative_change);
-    if let Some(change) = final_change
+    report.wang_yu = Some(WangYuSummary {
+        labels: LabelCounts::from_labels(&r.labels),
+        ring_size_histogram: ring_size_histogram(&r.ring),
+        initial_fits: r.initial_fits.into(),
+        adaptive_fits: r.adaptive_fits.into(),
+        volume_offset: r.volume_offset,
+    });
+    if let Some(change) = r.volume_not_restored {
+        report.warnings.push(format!(
+            "the enclosed volume changed by {:+.2}% and could not be restored: a \
+             uniform offset of at most half an edge length does not bring it back (the mesh may be \
+             too coarse or too thin for quadric fitting, or the volume restoration \
+             cannot undo a collapse)",
+            100.0 * change
+        ));
+    }
+    Smoothed {
+        positions: r.adaptive,
+        labels: r.labels.iter().map(|&l| l as u8).collect(),
+        curvature: Some(r.curvature),
+        volume_warned: r.volume_not_restored.is_some(),
+    }
+}
+
+/// The quality fixes (paper section 2.4) on `positions`, then, after a
+/// Wang-Yu run that restored the volume, a second small restoration kept
+/// only if it folds or twists no face.
+fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport) {
+    let Run {
+        mesh, topo, params, ..
+    } = *run;
+    let input = mesh.positions();
+    let _s = tracing::info_span!("quality").entered();
+    run.progress.update(Stage::Quality, 0.0);
+    report.quality_fixes = Some(improve(
+        mesh,
+        topo,
+        positions,
+        input,
+        &params.quality,
+        params.min_normal_cos(),
+    ));
+    // The fixes slide vertices over their fitted quadrics, which shifts
+    // the volume a little.
+    if let Some(summary) = report.wang_yu.as_mut()
+        && params.preserve_volume
+        && topo.num_boundary_edges() == 0
+        && summary.volume_offset != 0.0
+    {
+        let defects = defect_count(mesh, positions, input);
+        let max_offset = MAX_VOLUME_REOFFSET * mean_edge_length(mesh, positions);
+        let target = mesh.signed_volume();
+        summary.volume_offset += restore_volume(
+            mesh,
+            topo,
+            positions,
+            run.movable,
+            target,
+            max_offset,
+            |moved| defect_count(mesh, moved, input) <= defects,
+        );
+    }
+    run.progress.update(Stage::Quality, 1.0);
+}
+
+/// Warnings on the final stage: a volume that ends far from the input's
+/// (unless a warning already said so), and inverted faces.
+fn final_warnings(params: &Params, report: &mut QualityReport, volume_warned: bool) {
+    let Some(last) = report.stages.final_stage.as_ref() else {
+        return;
+    };
+    let change = last.volume.and_then(|v| v.relative_change);
+    let inverted = last.inverted_faces;
+    if let Some(change) = change
         && params.method == Method::WangYu
         && params.preserve_volume
-        && change.abs() > 0.005
+        && change.abs() > VOLUME_WARNING
         && !volume_warned
     {
         report.warnings.push(format!(
@@ -505,53 +649,13 @@ pub fn run(
             100.0 * change
         ));
     }
-    if let Some(inverted) = report
-        .stages
-        .final_stage
-        .as_ref()
-        .map(|s| s.inverted_faces)
-        .filter(|&n| n > 0)
-    {
+    if inverted > 0 {
         report.warnings.push(format!(
             "{inverted} faces are inverted relative to the input: the surface folded there \
              (typically at thin, pinched or non-manifold parts); look at those regions, or \
              smooth less (fewer passes, a smaller k_max)"
         ));
     }
-
-    let displacement = positions
-        .iter()
-        .zip(input)
-        .map(|(a, b)| a.distance(*b))
-        .collect();
-    // One entry per stage, in pipeline order (measuring happens in several
-    // places).
-    let mut per_stage: Vec<(Stage, f64)> = Vec::new();
-    for (stage, ms) in timings {
-        match per_stage.iter_mut().find(|t| t.0 == stage) {
-            Some(t) => t.1 += ms,
-            None => per_stage.push((stage, ms)),
-        }
-    }
-    per_stage.sort_by_key(|t| t.0);
-    report.timings = per_stage
-        .into_iter()
-        .map(|(stage, ms)| StageTiming {
-            stage: stage.name().to_string(),
-            ms,
-        })
-        .collect();
-    report.total_ms = ms(start);
-    Ok(SmoothOutput {
-        per_vertex: PerVertex {
-            label: labels,
-            mean_curvature: curvature.iter().map(|c| c.0).collect(),
-            gaussian_curvature: curvature.iter().map(|c| c.1).collect(),
-            displacement,
-        },
-        positions,
-        report,
-    })
 }
 
 /// Measures a mesh without smoothing it: the report's `input` stage (with

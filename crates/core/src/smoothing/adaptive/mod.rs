@@ -35,5 +35,92 @@ pub mod seeds;
 
 pub use growth::{AdaptiveNeighbourhoods, GrowthRule, adaptive_neighbourhoods, agreement_masks};
 pub use passes::{
-    EarlyStop, FLAT_MOMENTUM, FLAT_RING, REFIT_TOLERANCE, flat_passes, is_refit_pass, smooth_passes,
+    EarlyStop, FLAT_MOMENTUM, FLAT_RING, PassPlan, REFIT_TOLERANCE, flat_passes, is_refit_pass,
+    smooth_passes,
 };
+
+use crate::control::Cancelled;
+use crate::fit::quadric_fit::FitModel;
+use crate::mesh::{Mesh, Topology};
+use crate::smoothing::curvature::Curvatures;
+use crate::smoothing::label::Label;
+use crate::smoothing::neighbourhood::release_walk_scratch;
+use crate::smoothing::project::FitStats;
+use glam::{DVec3, Vec3};
+use rayon::prelude::*;
+use std::sync::atomic::AtomicBool;
+
+/// Grows every vertex's neighbourhood by `rule` from the labelled surface
+/// at `positions`: `labels`, `curvature` (`(H, K)`) and unit `normals` have
+/// one entry per vertex. Takes the curvature and normals to free them (and
+/// the growth's scratch) before the passes allocate theirs: the passes are
+/// where a run's memory peaks.
+pub fn grow_neighbourhoods(
+    topo: &Topology,
+    positions: &[DVec3],
+    labels: &[Label],
+    curvature: Curvatures,
+    normals: Vec<Vec3>,
+    rule: GrowthRule,
+) -> AdaptiveNeighbourhoods {
+    // Single precision: growth compares spreads of about 0.005.
+    let h_scaled: Vec<f32> = curvature
+        .par_iter()
+        .map(|&(h, _)| (h * rule.edge_length) as f32)
+        .collect();
+    let agreement = agreement_masks(&curvature, &rule);
+    drop(curvature);
+    let grown = adaptive_neighbourhoods(
+        topo, positions, labels, &agreement, &h_scaled, &normals, rule,
+    );
+    drop((h_scaled, normals, agreement));
+    release_walk_scratch();
+    grown
+}
+
+/// How the adaptive passes fit.
+#[derive(Debug, Clone, Copy)]
+pub struct PassSettings<'a> {
+    /// Which vertices may move.
+    pub movable: &'a [bool],
+    /// Passes to run.
+    pub passes: u32,
+    /// The surface model of the fits.
+    pub model: FitModel,
+    /// Neighbours facing away by a cosine below this are left out of a fit.
+    pub min_cos: f64,
+}
+
+/// The adaptive passes over the `grown` neighbourhoods, moving `positions`
+/// in place: refits on the schedule of [`is_refit_pass`], selective after
+/// the first ([`REFIT_TOLERANCE`]); vertices grown to [`FLAT_RING`] rings
+/// move with momentum and stop after [`flat_passes`]. Returns the fit
+/// statistics and each vertex's final ring size.
+pub fn adaptive_passes(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &mut [DVec3],
+    grown: AdaptiveNeighbourhoods,
+    settings: PassSettings,
+    cancel: &AtomicBool,
+    on_pass: impl FnMut(u32),
+) -> Result<(FitStats, Vec<u8>), Cancelled> {
+    let AdaptiveNeighbourhoods { hoods, ring } = grown;
+    let flat: Vec<bool> = ring.par_iter().map(|&k| k >= FLAT_RING).collect();
+    let plan = PassPlan {
+        hoods: &hoods,
+        movable: settings.movable,
+        model: settings.model,
+        min_cos: settings.min_cos,
+        passes: settings.passes,
+        refit: &is_refit_pass,
+        refit_tolerance: Some(REFIT_TOLERANCE),
+        early: Some(EarlyStop {
+            vertices: &flat,
+            momentum: FLAT_MOMENTUM,
+            passes: flat_passes(settings.passes),
+        }),
+    };
+    let stats = smooth_passes(mesh, topo, positions, &plan, cancel, on_pass)?;
+    Ok((stats, ring))
+}

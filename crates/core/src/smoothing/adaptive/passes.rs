@@ -83,7 +83,31 @@ pub fn flat_passes(passes: u32) -> u32 {
     passes - passes * 3 / 11
 }
 
-/// Runs `passes` passes over `hoods` starting from `positions` (updated in
+/// What [`smooth_passes`] runs: the neighbourhoods, which vertices move,
+/// the fit, and the schedule of refits and early stops.
+#[derive(Clone, Copy)]
+pub struct PassPlan<'a> {
+    /// Each vertex's neighbourhood.
+    pub hoods: &'a Neighbourhoods,
+    /// Which vertices may move.
+    pub movable: &'a [bool],
+    /// The surface model of the fits.
+    pub model: FitModel,
+    /// Neighbours facing away by a cosine below this are left out of a fit
+    /// ([`fit_pass`]).
+    pub min_cos: f64,
+    /// Passes to run.
+    pub passes: u32,
+    /// Whether pass `p` (from 0) fits anew; the first and the last always do.
+    pub refit: &'a dyn Fn(u32) -> bool,
+    /// Refits after the first fit only the [`stale_vertices`] under this
+    /// tolerance; `None`: every vertex.
+    pub refit_tolerance: Option<f32>,
+    /// Vertices that move with momentum and stop early.
+    pub early: Option<EarlyStop<'a>>,
+}
+
+/// Runs `plan.passes` passes over `plan.hoods` starting from `positions` (updated in
 /// place). Pass `p` fits anew when `refit(p)` holds, and always at the
 /// first and the last pass; the others are [`weighted_pass`]es with the
 /// weights of the latest fit. The last pass refits so the result lies on
@@ -96,22 +120,24 @@ pub fn flat_passes(passes: u32) -> u32 {
 /// passes ([`EarlyStop`]).
 /// Returns the summed fit statistics. `model` and `min_cos` are
 /// [`fit_pass`]'s.
-#[allow(clippy::too_many_arguments)]
 pub fn smooth_passes(
     mesh: &Mesh,
     topo: &Topology,
     positions: &mut [DVec3],
-    hoods: &Neighbourhoods,
-    movable: &[bool],
-    model: FitModel,
-    min_cos: f64,
-    passes: u32,
-    refit: impl Fn(u32) -> bool,
-    refit_tolerance: Option<f32>,
-    early: Option<EarlyStop>,
+    plan: &PassPlan,
     cancel: &AtomicBool,
     mut on_pass: impl FnMut(u32),
 ) -> Result<FitStats, Cancelled> {
+    let PassPlan {
+        hoods,
+        movable,
+        model,
+        min_cos,
+        passes,
+        refit,
+        refit_tolerance,
+        early,
+    } = *plan;
     let mut moves = vec![Vec3::ZERO; positions.len()];
     let last = passes.saturating_sub(1);
     let refits = |p: u32| p == 0 || p == last || refit(p);
@@ -270,14 +296,16 @@ mod tests {
                 &mesh,
                 &topo,
                 &mut p,
-                &hoods,
-                &movable,
-                FitModel::Cubic,
-                0.0,
-                14,
-                refit,
-                tolerance,
-                None,
+                &PassPlan {
+                    hoods: &hoods,
+                    movable: &movable,
+                    model: FitModel::Cubic,
+                    min_cos: 0.0,
+                    passes: 14,
+                    refit,
+                    refit_tolerance: tolerance,
+                    early: None,
+                },
                 &never,
                 |_| {},
             )
@@ -341,18 +369,20 @@ mod tests {
                 &mesh,
                 &topo,
                 &mut p,
-                &hoods,
-                &movable,
-                FitModel::Quadric,
-                0.0,
-                passes,
-                |_| true,
-                None,
-                Some(EarlyStop {
-                    vertices: &early,
-                    momentum: 0.8,
-                    passes: 3,
-                }),
+                &PassPlan {
+                    hoods: &hoods,
+                    movable: &movable,
+                    model: FitModel::Quadric,
+                    min_cos: 0.0,
+                    passes,
+                    refit: &|_| true,
+                    refit_tolerance: None,
+                    early: Some(EarlyStop {
+                        vertices: &early,
+                        momentum: 0.8,
+                        passes: 3,
+                    }),
+                },
                 &never,
                 |_| {},
             )
@@ -386,14 +416,16 @@ mod tests {
                 &mesh,
                 &topo,
                 &mut p,
-                &hoods,
-                &movable,
-                FitModel::Quadric,
-                0.0,
-                10,
-                is_refit_pass,
-                Some(REFIT_TOLERANCE),
-                early,
+                &PassPlan {
+                    hoods: &hoods,
+                    movable: &movable,
+                    model: FitModel::Quadric,
+                    min_cos: 0.0,
+                    passes: 10,
+                    refit: &is_refit_pass,
+                    refit_tolerance: Some(REFIT_TOLERANCE),
+                    early,
+                },
                 &never,
                 |_| {},
             )
