@@ -125,6 +125,16 @@ pub struct Params {
     /// across a fold, and fitting it would pull both sides together (open
     /// in the paper). 180 keeps every neighbour. Default 60; range 0..=180.
     pub max_normal_angle_deg: f64,
+    /// The fidelity bound: how far a vertex may end from its input
+    /// position, in its mean input edge lengths. A vertex of a voxel
+    /// lattice is held in the box of this half-width along the lattice's
+    /// axes (0.5 is its dual voxel, which the true surface crosses: no
+    /// vertex of a voxel mesh moves more than `sqrt(3)/2` voxel); any other
+    /// vertex within a ball of this radius. Every smoothing pass, the volume
+    /// restoration and the quality fixes keep to it; the report counts the
+    /// vertices it held back. `null` lets vertices move freely.
+    /// Default 0.5; range 0 < d <= 10.
+    pub max_displacement: Option<f64>,
     /// What boundary vertices do. Default `fixed`.
     pub boundary: BoundaryRule,
     /// Restore the input's enclosed volume at the end by a uniform offset
@@ -171,6 +181,7 @@ impl Default for Params {
             curvature_std_bound: 0.05,
             bias_bound: 0.06,
             max_normal_angle_deg: 60.0,
+            max_displacement: Some(0.5),
             boundary: BoundaryRule::Fixed,
             preserve_volume: true,
             weld: None,
@@ -286,6 +297,9 @@ impl Params {
             ),
         ] {
             check_f64(field, v, (0.0..=hi).contains(&v), allowed)?;
+        }
+        if let Some(d) = self.max_displacement {
+            check_f64("max_displacement", d, d > 0.0 && d <= 10.0, "0 < d <= 10")?;
         }
         let w = self.weld_tolerance;
         check_f64("weld_tolerance", w, (0.0..=0.01).contains(&w), "0..=0.01")?;

@@ -17,6 +17,7 @@ use crate::report::{
 use crate::report::{mean_curvature_variation, measure_stage, mesh_statistics};
 use crate::smoothing::adaptive::{GrowthRule, PassSettings, adaptive_passes, grow_neighbourhoods};
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
+use crate::smoothing::fidelity::{Fidelity, FidelityBound};
 use crate::smoothing::initial::initial_passes;
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
@@ -89,6 +90,14 @@ pub fn movable_mask(topo: &Topology, boundary: BoundaryRule) -> Vec<bool> {
         .collect()
 }
 
+/// How much farther than the fidelity bound the quality fixes may take a
+/// vertex, as a ball of this many times the bound's size: the smoothing
+/// passes leave vertices against the walls of their dual voxels (a thin
+/// sheet's two sides against the same wall), and opening the triangles
+/// flattened there needs room beyond the wall. Twice the default half voxel
+/// is one voxel, the most the fidelity bound promises.
+const QUALITY_ROOM: f64 = 2.0;
+
 /// A smoothing run's inputs, shared by its stages.
 #[derive(Clone, Copy)]
 struct Run<'a> {
@@ -97,6 +106,13 @@ struct Run<'a> {
     /// [`movable_mask`].
     movable: &'a [bool],
     params: &'a Params,
+    /// The fidelity bound of the smoothing passes and the volume
+    /// restoration ([`Params::max_displacement`]).
+    fidelity: &'a Fidelity<'a>,
+    /// The wider bound of the quality fixes ([`QUALITY_ROOM`]), and the
+    /// record of what it held back.
+    quality_bound: Option<&'a FidelityBound>,
+    quality_fidelity: &'a Fidelity<'a>,
     progress: &'a dyn Progress,
     cancel: &'a AtomicBool,
 }
@@ -188,6 +204,7 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
         params,
         progress,
         cancel,
+        ..
     } = *run;
     let mut positions = mesh.positions().to_vec();
     let (initial_fits, input_curvature_variation) =
@@ -226,6 +243,7 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
                 AdaptiveFit::Quadric => FitModel::Quadric,
             },
             min_cos: params.min_normal_cos(),
+            fidelity: Some(run.fidelity),
         };
         adaptive_passes(mesh, topo, &mut positions, grown, settings, cancel, |p| {
             progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64)
@@ -264,6 +282,7 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
         run.params.max_fit_points as usize,
         run.params.min_normal_cos(),
         passes,
+        run.fidelity,
         run.cancel,
         |p| {
             run.progress
@@ -332,6 +351,7 @@ fn restore_after_passes(run: &Run, positions: &mut [DVec3]) -> (f64, Option<f64>
         max_offset,
         |_| true,
     );
+    run.fidelity.apply(positions);
     let change = (signed_volume(mesh, positions) - target) / target.abs();
     let refused = offset == 0.0 && change.abs() > VOLUME_RESTORED;
     (offset, refused.then_some(change))
@@ -426,11 +446,21 @@ pub fn run(
     let (topo, movable, mut report) = timings.time(Stage::Analyse, || analyse(mesh, params));
     progress.update(Stage::Analyse, 1.0);
     check(cancel)?;
+    let bound = params
+        .max_displacement
+        .filter(|_| params.method == Method::WangYu)
+        .map(|d| FidelityBound::new(mesh, &topo, d));
+    let quality_bound = bound.as_ref().map(|b| b.widened(QUALITY_ROOM));
+    let fidelity = Fidelity::new(bound.as_ref(), mesh.positions());
+    let quality_fidelity = Fidelity::new(quality_bound.as_ref(), mesh.positions());
     let run = Run {
         mesh,
         topo: &topo,
         movable: &movable,
         params,
+        fidelity: &fidelity,
+        quality_bound: quality_bound.as_ref(),
+        quality_fidelity: &quality_fidelity,
         progress,
         cancel,
     };
@@ -474,6 +504,11 @@ pub fn run(
         });
     }
     check(cancel)?;
+    if let Some(summary) = report.wang_yu.as_mut() {
+        summary.fidelity_held_back = bound
+            .as_ref()
+            .map(|_| fidelity.held_back_with(&quality_fidelity));
+    }
 
     let curvature = timings.time(Stage::Report, || {
         let curvature =
@@ -570,6 +605,7 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
         initial_fits: r.initial_fits.into(),
         adaptive_fits: r.adaptive_fits.into(),
         volume_offset: r.volume_offset,
+        fidelity_held_back: None,
     });
     if let Some(change) = r.volume_not_restored {
         report.warnings.push(format!(
@@ -603,6 +639,7 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
         topo,
         positions,
         input,
+        run.quality_bound,
         &params.quality,
         params.min_normal_cos(),
     ));
@@ -626,6 +663,7 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
             |moved| defect_count(mesh, moved, input) <= defects,
         );
     }
+    run.quality_fidelity.apply(positions);
     run.progress.update(Stage::Quality, 1.0);
 }
 

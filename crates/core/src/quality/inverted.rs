@@ -24,6 +24,7 @@
 
 use super::local::{MoveTester, is_inverted};
 use crate::mesh::{Mesh, Topology, VertexKind};
+use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -72,6 +73,7 @@ pub fn fix_inverted_faces(
     topo: &Topology,
     positions: &mut [DVec3],
     input: &[DVec3],
+    bound: Option<&FidelityBound>,
     max_sweeps: u32,
 ) -> InvertedStats {
     let mut inverted = inverted_faces(mesh, positions, input);
@@ -79,7 +81,7 @@ pub fn fix_inverted_faces(
         found: inverted.len() as u64,
         ..InvertedStats::default()
     };
-    let mut tester = MoveTester::default();
+    let mut tester = MoveTester::bounded(bound);
     let mut cluster = Cluster::default();
     while !inverted.is_empty() && stats.sweeps < max_sweeps as u64 {
         stats.sweeps += 1;
@@ -239,7 +241,7 @@ mod tests {
         let before = measure_stage(&m, &t, &p, &input, None, 0.2);
         assert!(before.inverted_faces >= 2, "the fixture folds");
         let folded = p.clone();
-        let stats = fix_inverted_faces(&m, &t, &mut p, &input, 10);
+        let stats = fix_inverted_faces(&m, &t, &mut p, &input, None, 10);
         assert_eq!(stats.found, before.inverted_faces);
         assert_eq!((stats.retreats, stats.remaining), (1, 0), "{stats:?}");
         assert_eq!(defect_count(&m, &p, &input), 0);
@@ -264,7 +266,7 @@ mod tests {
         // Past its neighbour (3, 3): a quarter of the way back (x = 3.05)
         // is still past it, half of the way (x = 2.7) is not.
         p[a] = DVec3::new(3.4, 3.0, 0.0);
-        let stats = fix_inverted_faces(&m, &t, &mut p, &input, 10);
+        let stats = fix_inverted_faces(&m, &t, &mut p, &input, None, 10);
         assert_eq!((stats.retreats, stats.remaining), (1, 0), "{stats:?}");
         assert!(
             (p[a] - DVec3::new(2.7, 3.0, 0.0)).length() < 1e-12,
@@ -285,7 +287,7 @@ mod tests {
         let corner = at(2, 0, 0);
         p[corner] = DVec3::new(1.5, 1.5, 0.0);
         let moved = p.clone();
-        let stats = fix_inverted_faces(&m, &t, &mut p, &input, 10);
+        let stats = fix_inverted_faces(&m, &t, &mut p, &input, None, 10);
         assert!(stats.found >= 1);
         assert_eq!(stats.remaining, stats.found);
         assert!(stats.rejected >= 1);
@@ -300,7 +302,7 @@ mod tests {
         let mut p = input.clone();
         p[at(4, 2, 2)].z = 0.3;
         let bumped = p.clone();
-        let stats = fix_inverted_faces(&m, &t, &mut p, &input, 10);
+        let stats = fix_inverted_faces(&m, &t, &mut p, &input, None, 10);
         assert_eq!(stats, InvertedStats::default());
         assert_eq!(p, bumped);
     }

@@ -13,6 +13,7 @@ use crate::fit::normals::vertex_normal;
 use crate::fit::quadric_fit::{FitKind, QuadricFit, fit_quadric};
 pub(crate) use crate::mesh::has_repeated_corner;
 use crate::mesh::{Mesh, Topology, vector_area};
+use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
 
 /// Cosine of the angle between `a` and `b`; 1 (a 0° angle) when either is
@@ -334,9 +335,22 @@ pub(crate) struct MoveTester {
     /// Each vertex given to `begin` with its longest edge: no move may take
     /// it farther than that.
     reach: Vec<(usize, f64)>,
+    /// The fidelity bound no move may take a vertex out of, with the input
+    /// position of each vertex of `reach`.
+    bound: Option<FidelityBound>,
+    reach_input: Vec<DVec3>,
 }
 
 impl MoveTester {
+    /// A tester that also rejects any move out of `bound` (none: no
+    /// bound).
+    pub fn bounded(bound: Option<&FidelityBound>) -> Self {
+        MoveTester {
+            bound: bound.cloned(),
+            ..MoveTester::default()
+        }
+    }
+
     /// Collects the faces around `vertices` (each once, skipping faces with
     /// a repeated corner) and records their state; `cos_goal` is the cosine
     /// of the angle goal the deficits are measured against (1 for none).
@@ -351,6 +365,8 @@ impl MoveTester {
     ) {
         self.cos_goal = cos_goal;
         self.reach.clear();
+        self.reach_input.clear();
+        self.reach_input.extend(vertices.iter().map(|&v| input[v]));
         for &v in vertices {
             let p = positions[v];
             let longest = topo
@@ -423,6 +439,15 @@ impl MoveTester {
             let jump = p.distance(positions[w]);
             jump > reach || jump.is_nan()
         });
+        if let Some(bound) = &self.bound {
+            verdict.new_defect |= moves.iter().any(|&(w, p)| {
+                self.reach
+                    .iter()
+                    .zip(&self.reach_input)
+                    .find(|(r, _)| r.0 == w)
+                    .is_some_and(|(_, &o)| !bound.allows(w, o, p))
+            });
+        }
         for ((&f, b), &start) in self.faces.iter().zip(&self.before).zip(&self.starts) {
             let normals = &self.input_normals[start as usize..];
             let a = face_state_at(mesh.face(f as usize), pos, normals, self.cos_goal);

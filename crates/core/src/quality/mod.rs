@@ -29,6 +29,7 @@ pub use short_edge::{ShortEdgeStats, fix_short_edges};
 pub use twisted::{TwistedStats, fix_twisted_quads};
 
 use crate::mesh::{Mesh, Topology};
+use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
@@ -84,13 +85,15 @@ pub struct QualityFixStats {
 /// that moved a vertex, sharp angles again, its counts added to the
 /// first run's), each at most `params.max_sweeps` sweeps. Surface fits leave out
 /// neighbours facing away by a cosine below `min_normal_cos`
-/// ([`crate::Params::min_normal_cos`]). Does nothing when `params.enabled`
+/// ([`crate::Params::min_normal_cos`]). No move takes a vertex out of
+/// `bound` around its input position. Does nothing when `params.enabled`
 /// is false.
 pub fn improve(
     mesh: &Mesh,
     topo: &Topology,
     positions: &mut [DVec3],
     input: &[DVec3],
+    bound: Option<&FidelityBound>,
     params: &QualityParams,
     min_normal_cos: f64,
 ) -> QualityFixStats {
@@ -98,12 +101,13 @@ pub fn improve(
         return QualityFixStats::default();
     }
     let sweeps = params.max_sweeps;
-    let twisted = fix_twisted_quads(mesh, topo, positions, input, sweeps, min_normal_cos);
+    let twisted = fix_twisted_quads(mesh, topo, positions, input, bound, sweeps, min_normal_cos);
     let short_edges = fix_short_edges(
         mesh,
         topo,
         positions,
         input,
+        bound,
         params.short_edge_fraction,
         sweeps,
         min_normal_cos,
@@ -114,13 +118,14 @@ pub fn improve(
             topo,
             positions,
             input,
+            bound,
             params.sharp_angle_deg,
             sweeps,
             min_normal_cos,
         )
     };
     let mut sharp_angles = sharp(positions);
-    let inverted = fix_inverted_faces(mesh, topo, positions, input, sweeps);
+    let inverted = fix_inverted_faces(mesh, topo, positions, input, bound, sweeps);
     if inverted.vertices_moved > 0 {
         // The folds moved back towards the input: clean up their angles.
         let again = sharp(positions);

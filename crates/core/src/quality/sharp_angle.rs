@@ -50,6 +50,7 @@ use super::local::{
     link_centroid, link_radius, max_split_cos, ordered_link, uninvert_steps,
 };
 use crate::mesh::{Mesh, Topology, VertexKind};
+use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -111,9 +112,10 @@ pub(crate) enum Visit {
 impl Relocator {
     /// A relocator whose surface fits leave out neighbours facing away by
     /// a cosine below `min_normal_cos`.
-    pub fn new(min_normal_cos: f64) -> Relocator {
+    pub fn new(min_normal_cos: f64, bound: Option<&FidelityBound>) -> Relocator {
         Relocator {
             min_normal_cos,
+            tester: MoveTester::bounded(bound),
             ..Relocator::default()
         }
     }
@@ -259,11 +261,13 @@ fn count_sharp(mesh: &Mesh, positions: &[DVec3], cos_limit: f64) -> u64 {
 /// at most `max_sweeps` sweeps; moves vertices in `positions` in place
 /// (one entry per vertex; `input` likewise). See the module documentation
 /// for the order and the acceptance rule.
+#[allow(clippy::too_many_arguments)]
 pub fn fix_sharp_angles(
     mesh: &Mesh,
     topo: &Topology,
     positions: &mut [DVec3],
     input: &[DVec3],
+    bound: Option<&FidelityBound>,
     sharp_angle_deg: f64,
     max_sweeps: u32,
     min_normal_cos: f64,
@@ -306,7 +310,7 @@ pub fn fix_sharp_angles(
                 .par_iter()
                 .with_min_len(64)
                 .map_init(
-                    || Relocator::new(min_normal_cos),
+                    || Relocator::new(min_normal_cos, bound),
                     |r, &v| {
                         let thorough = previously_stuck.binary_search(&v).is_ok();
                         r.relocate(
@@ -480,7 +484,7 @@ mod tests {
         // Vertex (2,2) dragged next to (3,2): slivers all around it.
         p[at(5, 2, 2)] = DVec3::new(2.9, 2.05, 0.0);
         assert!(min_split_angle(&m, &p, None) < 5.0);
-        let stats = fix_sharp_angles(&m, &t, &mut p, &input, 20.0, 10, 0.5);
+        let stats = fix_sharp_angles(&m, &t, &mut p, &input, None, 20.0, 10, 0.5);
         assert!(stats.faces_found > 0 && stats.moves > 0);
         assert_eq!(stats.faces_remaining, 0);
         assert!(min_split_angle(&m, &p, None) >= 20.0 - 1e-9);
@@ -507,7 +511,7 @@ mod tests {
         assert!(worst_before < 10.0, "risers are slivers: {worst_before}");
         let all_before = min_split_angle(&m, &flat, None);
         let mut p = flat.clone();
-        fix_sharp_angles(&m, &t, &mut p, input, 20.0, 20, 0.5);
+        fix_sharp_angles(&m, &t, &mut p, input, None, 20.0, 20, 0.5);
         let worst_after = min_split_angle(&m, &p, Some(&inner));
         assert!(worst_after > 15.0, "inner faces now {worst_after}");
         assert!(min_split_angle(&m, &p, None) >= all_before);
@@ -527,8 +531,8 @@ mod tests {
         let before = measure_stage(&m, &t, &projected, input, None, 0.2);
         assert!(before.triangle_angles.below_15 > 0 && before.inverted_faces > 0);
         let mut p = projected.clone();
-        fix_twisted_quads(&m, &t, &mut p, input, 10, 0.5);
-        let stats = fix_sharp_angles(&m, &t, &mut p, input, 20.0, 10, 0.5);
+        fix_twisted_quads(&m, &t, &mut p, input, None, 10, 0.5);
+        let stats = fix_sharp_angles(&m, &t, &mut p, input, None, 20.0, 10, 0.5);
         assert_eq!(stats.faces_remaining, 0, "{stats:?}");
         let after = measure_stage(&m, &t, &p, input, None, 0.2);
         assert_eq!(after.triangle_angles.below_15, 0);
@@ -558,7 +562,7 @@ mod tests {
                 .unwrap()
                 .install(|| {
                     let mut p = projected.clone();
-                    let s = fix_sharp_angles(&m, &t, &mut p, m.positions(), 25.0, 10, 0.5);
+                    let s = fix_sharp_angles(&m, &t, &mut p, m.positions(), None, 25.0, 10, 0.5);
                     (p, s)
                 })
         };

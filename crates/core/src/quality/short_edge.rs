@@ -26,6 +26,7 @@
 
 use super::local::{LocalSurface, MoveTester, ordered_link};
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length};
+use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -68,11 +69,13 @@ fn short_edges(topo: &Topology, positions: &[DVec3], threshold: f64) -> Vec<u32>
 /// `positions`) by the trisection construction; at most `max_sweeps`
 /// sweeps. Moves vertices in `positions` in place (one entry per vertex;
 /// `input`, the input positions, likewise).
+#[allow(clippy::too_many_arguments)]
 pub fn fix_short_edges(
     mesh: &Mesh,
     topo: &Topology,
     positions: &mut [DVec3],
     input: &[DVec3],
+    bound: Option<&FidelityBound>,
     fraction: f64,
     max_sweeps: u32,
     min_normal_cos: f64,
@@ -86,6 +89,7 @@ pub fn fix_short_edges(
     };
     let mut fixer = Fixer {
         min_normal_cos,
+        tester: MoveTester::bounded(bound),
         ..Fixer::default()
     };
     while !short.is_empty() && stats.sweeps < max_sweeps as u64 {
@@ -270,7 +274,7 @@ mod tests {
         p[a] = DVec3::new(2.46, 3.0, 0.0);
         p[b] = DVec3::new(2.54, 3.0, 0.0);
         let angle_before = min_split_angle(&m, &p, None);
-        let stats = fix_short_edges(&m, &t, &mut p, &input, 0.2, 10, 0.5);
+        let stats = fix_short_edges(&m, &t, &mut p, &input, None, 0.2, 10, 0.5);
         assert_eq!(stats.found, 1);
         assert_eq!(stats.lengthened, 1);
         assert_eq!(stats.remaining, 0);

@@ -23,6 +23,7 @@
 use super::local::{MoveTester, Verdict, is_twisted};
 use super::sharp_angle::{Relocator, Visit};
 use crate::mesh::{Mesh, Topology, VertexKind};
+use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -67,6 +68,7 @@ pub fn fix_twisted_quads(
     topo: &Topology,
     positions: &mut [DVec3],
     input: &[DVec3],
+    bound: Option<&FidelityBound>,
     max_sweeps: u32,
     min_normal_cos: f64,
 ) -> TwistedStats {
@@ -75,8 +77,8 @@ pub fn fix_twisted_quads(
         found: twisted.len() as u64,
         ..TwistedStats::default()
     };
-    let mut tester = MoveTester::default();
-    let mut relocator = Relocator::new(min_normal_cos);
+    let mut tester = MoveTester::bounded(bound);
+    let mut relocator = Relocator::new(min_normal_cos, bound);
     while !twisted.is_empty() && stats.sweeps < max_sweeps as u64 {
         stats.sweeps += 1;
         let mut changed = false;
@@ -186,7 +188,7 @@ mod tests {
         p.swap(a, b);
         let before = measure_stage(&m, &t, &p, &input, None, 0.2);
         assert!(before.twisted_quads >= 2, "the fixture has a twisted pair");
-        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10, 0.5);
+        let stats = fix_twisted_quads(&m, &t, &mut p, &input, None, 10, 0.5);
         assert_eq!(stats.found, before.twisted_quads);
         assert!(stats.swaps >= 1);
         assert_eq!(stats.remaining, 0);
@@ -207,7 +209,7 @@ mod tests {
         p[v] = DVec3::new(0.8, 1.5, 0.1);
         let before = measure_stage(&m, &t, &p, &input, None, 0.2);
         assert!(before.twisted_quads >= 1);
-        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10, 0.5);
+        let stats = fix_twisted_quads(&m, &t, &mut p, &input, None, 10, 0.5);
         assert_eq!(stats.remaining, 0, "{stats:?}");
         let after = measure_stage(&m, &t, &p, &input, None, 0.2);
         assert_eq!(after.twisted_quads, 0);
@@ -223,7 +225,7 @@ mod tests {
         let mut p = input.clone();
         p.swap(at(2, 0, 0), at(2, 1, 0)); // both on the boundary
         let moved = p.clone();
-        let stats = fix_twisted_quads(&m, &t, &mut p, &input, 10, 0.5);
+        let stats = fix_twisted_quads(&m, &t, &mut p, &input, None, 10, 0.5);
         assert!(stats.found >= 1);
         for v in 0..p.len() {
             if t.kind(v) != VertexKind::Interior {

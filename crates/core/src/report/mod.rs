@@ -347,6 +347,11 @@ pub struct WangYuSummary {
     /// that restores it again after the quality fixes, in mesh units (0 when
     /// not applied).
     pub volume_offset: f64,
+    /// Vertices the fidelity bound (`max_displacement`) held back at least
+    /// once: a smoothing pass, the volume restoration or a quality fix
+    /// would have moved them farther from their input position; `null`
+    /// when the run had no bound.
+    pub fidelity_held_back: Option<u64>,
 }
 
 /// Histogram of ring sizes: entry `k` counts the vertices with `ring[v] ==
@@ -476,6 +481,7 @@ mod tests {
             &topo,
             &mut p,
             input,
+            None,
             &params.quality,
             params.min_normal_cos(),
         ));

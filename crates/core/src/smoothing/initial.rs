@@ -2,6 +2,7 @@
 //! fits over the fixed 2-ring of every vertex.
 
 use super::curvature::{Curvatures, vertex_curvatures};
+use super::fidelity::Fidelity;
 use super::neighbourhood::HoodSource;
 use super::project::{FitStats, apply, fit_pass};
 use crate::control::{Cancelled, check};
@@ -28,6 +29,7 @@ pub fn initial_passes(
     max_points: usize,
     min_cos: f64,
     passes: u32,
+    fidelity: &Fidelity,
     cancel: &AtomicBool,
     mut on_pass: impl FnMut(u32),
 ) -> Result<(FitStats, Curvatures), Cancelled> {
@@ -62,6 +64,7 @@ pub fn initial_passes(
             first,
         ));
         apply(positions, &moves);
+        fidelity.apply(positions);
         on_pass(pass + 1);
     }
     Ok((stats, curvature))
@@ -101,6 +104,7 @@ mod tests {
                 56,
                 0.5,
                 passes,
+                &Fidelity::unbounded(),
                 &never,
                 |_| {},
             )

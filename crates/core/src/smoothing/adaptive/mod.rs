@@ -43,6 +43,7 @@ use crate::control::Cancelled;
 use crate::fit::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
 use crate::smoothing::curvature::Curvatures;
+use crate::smoothing::fidelity::Fidelity;
 use crate::smoothing::label::Label;
 use crate::smoothing::neighbourhood::release_walk_scratch;
 use crate::smoothing::project::FitStats;
@@ -89,6 +90,8 @@ pub struct PassSettings<'a> {
     pub model: FitModel,
     /// Neighbours facing away by a cosine below this are left out of a fit.
     pub min_cos: f64,
+    /// The fidelity bound every pass keeps to; `None`: no bound.
+    pub fidelity: Option<&'a Fidelity<'a>>,
 }
 
 /// The adaptive passes over the `grown` neighbourhoods, moving `positions`
@@ -120,6 +123,7 @@ pub fn adaptive_passes(
             momentum: FLAT_MOMENTUM,
             passes: flat_passes(settings.passes),
         }),
+        fidelity: settings.fidelity,
     };
     let stats = smooth_passes(mesh, topo, positions, &plan, cancel, on_pass)?;
     Ok((stats, ring))

@@ -5,6 +5,7 @@
 use crate::control::{Cancelled, check};
 use crate::fit::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
+use crate::smoothing::fidelity::Fidelity;
 use crate::smoothing::neighbourhood::{HoodSource, Neighbourhoods};
 use crate::smoothing::project::{
     FitStats, Momentum, Refit, UNFITTED_DRIFT, apply, fit_pass, step_limits, weighted_pass,
@@ -105,6 +106,8 @@ pub struct PassPlan<'a> {
     pub refit_tolerance: Option<f32>,
     /// Vertices that move with momentum and stop early.
     pub early: Option<EarlyStop<'a>>,
+    /// The fidelity bound every pass keeps to; `None`: no bound.
+    pub fidelity: Option<&'a Fidelity<'a>>,
 }
 
 /// Runs `plan.passes` passes over `plan.hoods` starting from `positions` (updated in
@@ -137,6 +140,7 @@ pub fn smooth_passes(
         refit,
         refit_tolerance,
         early,
+        fidelity,
     } = *plan;
     let mut moves = vec![Vec3::ZERO; positions.len()];
     let last = passes.saturating_sub(1);
@@ -206,6 +210,9 @@ pub fn smooth_passes(
             };
         stats.accumulate(s);
         apply(positions, &moves);
+        if let Some(f) = fidelity {
+            f.apply(positions);
+        }
         on_pass(pass + 1);
     }
     Ok(stats)
@@ -305,6 +312,7 @@ mod tests {
                     refit,
                     refit_tolerance: tolerance,
                     early: None,
+                    fidelity: None,
                 },
                 &never,
                 |_| {},
@@ -382,6 +390,7 @@ mod tests {
                         momentum: 0.8,
                         passes: 3,
                     }),
+                    fidelity: None,
                 },
                 &never,
                 |_| {},
@@ -425,6 +434,7 @@ mod tests {
                     refit: &is_refit_pass,
                     refit_tolerance: Some(REFIT_TOLERANCE),
                     early,
+                    fidelity: None,
                 },
                 &never,
                 |_| {},

@@ -1,0 +1,261 @@
+"""One set of metrics for every smoother: meshsmooth and its peers.
+
+Every figure compares an output mesh with the input it came from, vertex for
+vertex (the smoothers never change connectivity), and optionally with a
+sub-voxel ground truth: the surface where a probability map, trilinearly
+interpolated, crosses a threshold.
+
+Measures (polygons are read whole; quads are split into the triangles
+(v0 v1 v2), (v2 v3 v0) for angles and twists):
+- flipped: faces whose vector area points against the same face's in the input
+- twisted: quads whose two triangles' normals are more than 90 degrees apart
+- angles < 20 / min angle: corner angles of the triangle split, in degrees
+- max move: largest vertex displacement, in voxels (or mean input edge lengths)
+- curvature variation: mean over vertices of max_{j in N1(i)} |H_i - H_j|,
+  H from an unweighted quadric fit to the 2-ring in the area-weighted normal
+  frame, times the mean edge length (scale-free)
+- volume change: of closed meshes, relative
+- truth RMS / median: exact point-to-triangle distances from the output
+  vertices to the truth surface (open3d's RaycastingScene)
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+import scipy.sparse as sp
+
+
+def read_obj(path):
+    """Positions (n, 3) and faces (list of index lists, 0-based) of an OBJ."""
+    verts, faces = [], []
+    with open(path, "rb") as f:
+        for raw in f:
+            line = raw.split(b"#", 1)[0].split()
+            if not line:
+                continue
+            if line[0] == b"v":
+                verts.append([float(x) for x in line[1:4]])
+            elif line[0] == b"f":
+                idx = []
+                for tok in line[1:]:
+                    i = int(tok.split(b"/")[0])
+                    idx.append(i - 1 if i > 0 else len(verts) + i)
+                faces.append(idx)
+    return np.asarray(verts, dtype=np.float64), faces
+
+
+def write_obj(path, verts, faces):
+    with open(path, "w") as f:
+        for v in verts:
+            f.write(f"v {v[0]:.9g} {v[1]:.9g} {v[2]:.9g}\n")
+        for face in faces:
+            f.write("f " + " ".join(str(i + 1) for i in face) + "\n")
+
+
+def triangles(faces):
+    """Fan triangulation (v0 v1 v2), (v0 v2 v3), ... of every polygon, as an
+    (m, 3) array; for quads the same split as (v0 v1 v2), (v2 v3 v0)."""
+    tris = []
+    for face in faces:
+        for j in range(1, len(face) - 1):
+            tris.append((face[0], face[j], face[j + 1]))
+    return np.asarray(tris, dtype=np.int64)
+
+
+def vector_areas(verts, faces):
+    out = np.zeros((len(faces), 3))
+    for fi, face in enumerate(faces):
+        p = verts[face]
+        out[fi] = 0.5 * np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0)
+    return out
+
+
+def edges_of(faces):
+    e = set()
+    for face in faces:
+        for a, b in zip(face, face[1:] + face[:1]):
+            e.add((min(a, b), max(a, b)))
+    return np.asarray(sorted(e), dtype=np.int64)
+
+
+def adjacency(n, edges):
+    a = sp.coo_matrix(
+        (np.ones(2 * len(edges)), (np.r_[edges[:, 0], edges[:, 1]], np.r_[edges[:, 1], edges[:, 0]])),
+        shape=(n, n),
+    ).tocsr()
+    a.data[:] = 1
+    return a
+
+
+def triangle_angles(verts, tris):
+    p = verts[tris]
+    angles = []
+    for i in range(3):
+        a = p[:, (i + 1) % 3] - p[:, i]
+        b = p[:, (i + 2) % 3] - p[:, i]
+        cos = (a * b).sum(1) / np.maximum(np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1), 1e-300)
+        angles.append(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+    return np.concatenate(angles)
+
+
+def twisted_quads(verts, faces):
+    n = 0
+    for face in faces:
+        if len(face) != 4:
+            continue
+        p = verts[face]
+        n1 = np.cross(p[1] - p[0], p[2] - p[0])
+        n2 = np.cross(p[3] - p[2], p[0] - p[2])
+        if np.dot(n1, n2) < 0:
+            n += 1
+    return n
+
+
+def mean_curvature(verts, faces, adj):
+    """H per vertex from an unweighted quadric fit to the 2-ring, in the frame
+    of the area-weighted vertex normal (outward normals: convex < 0)."""
+    n = len(verts)
+    va = vector_areas(verts, faces)
+    normals = np.zeros((n, 3))
+    for fi, face in enumerate(faces):
+        normals[face] += va[fi]
+    norm = np.linalg.norm(normals, axis=1, keepdims=True)
+    valid = norm[:, 0] > 1e-12
+    normals /= np.maximum(norm, 1e-300)
+    ring2 = adj + adj @ adj
+    ring2 = ring2.tocsr()
+    h = np.zeros(n)
+    for i in range(n):
+        nb = ring2.indices[ring2.indptr[i] : ring2.indptr[i + 1]]
+        nb = nb[nb != i]
+        if len(nb) < 6 or not valid[i]:
+            continue
+        w = normals[i]
+        u = np.cross(w, [1.0, 0, 0] if abs(w[0]) < 0.9 else [0, 1.0, 0])
+        u /= np.linalg.norm(u)
+        v = np.cross(w, u)
+        d = verts[nb] - verts[i]
+        x, y, z = d @ u, d @ v, d @ w
+        m = np.stack([x * x, x * y, y * y, x, y, np.ones_like(x)], axis=1)
+        beta, *_ = np.linalg.lstsq(m, z, rcond=None)
+        a, b, c, e, f = beta[:5]
+        ee, ff, gg = 1 + e * e, e * f, 1 + f * f
+        r = math.sqrt(1 + e * e + f * f)
+        l, mm, nn = 2 * a / r, b / r, 2 * c / r
+        h[i] = (ee * nn - 2 * ff * mm + gg * l) / (2 * (ee * gg - ff * ff))
+    return h
+
+
+def curvature_variation(verts, faces, adj, edge_len):
+    h = mean_curvature(verts, faces, adj)
+    a = adj.tocoo()
+    diff = np.abs(h[a.row] - h[a.col])
+    mx = np.zeros(len(verts))
+    np.maximum.at(mx, a.row, diff)
+    return float(mx.mean() * edge_len)
+
+
+def signed_volume(verts, tris):
+    p = verts[tris]
+    return float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0)
+
+
+def is_closed(edges_count):
+    return all(c % 2 == 0 for c in edges_count.values())
+
+
+class Truth:
+    """The surface where a probability map, trilinearly interpolated, equals
+    `level`: marching cubes of the map resampled `upsample` times finer,
+    queried with exact point-to-triangle distances."""
+
+    def __init__(self, nifti_path, level=127.5, upsample=4):
+        import nibabel as nib
+        import open3d as o3d
+        from scipy.ndimage import map_coordinates
+        from skimage.measure import marching_cubes
+
+        img = nib.load(nifti_path)
+        data = np.asarray(img.dataobj, dtype=np.float64)
+        self.affine = img.affine
+        self.shape = data.shape
+        axes = [np.arange(0, s - 1 + 1e-9, 1.0 / upsample) for s in data.shape]
+        grid = np.meshgrid(*axes, indexing="ij")
+        fine = map_coordinates(data, [g.ravel() for g in grid], order=1).reshape(grid[0].shape)
+        # Pad with the outside value so the truth closes at the volume's edge.
+        fine = np.pad(fine, 1, constant_values=0.0)
+        v, f, _, _ = marching_cubes(fine, level)
+        v = (v - 1.0) / upsample
+        world = v @ self.affine[:3, :3].T + self.affine[:3, 3]
+        self.voxel = float(abs(np.linalg.det(self.affine[:3, :3])) ** (1 / 3))
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(
+            o3d.core.Tensor(world.astype(np.float32)), o3d.core.Tensor(f.astype(np.uint32))
+        )
+        self.scene = scene
+
+    def index_of(self, points):
+        inv = np.linalg.inv(self.affine)
+        return points @ inv[:3, :3].T + inv[:3, 3]
+
+    def inside_crop(self, points, margin):
+        """Points at least `margin` voxels inside the map's volume."""
+        idx = self.index_of(points)
+        hi = np.asarray(self.shape) - 1 - margin
+        return np.all((idx >= margin) & (idx <= hi), axis=1)
+
+    def distances(self, points):
+        import open3d as o3d
+
+        q = o3d.core.Tensor(points.astype(np.float32))
+        return self.scene.compute_distance(q).numpy().astype(np.float64)
+
+
+def measure(input_verts, faces, verts, voxel=None, truth=None, truth_margin=None):
+    """All measures of `verts` (an output of a smoother run on
+    (`input_verts`, `faces`)) as a dict."""
+    n = len(verts)
+    edges = edges_of(faces)
+    adj = adjacency(n, edges)
+    edge_len = float(np.linalg.norm(input_verts[edges[:, 0]] - input_verts[edges[:, 1]], axis=1).mean())
+    unit = voxel if voxel else edge_len
+    tris = triangles(faces)
+    va_in = vector_areas(input_verts, faces)
+    va_out = vector_areas(verts, faces)
+    flipped = int(((va_in * va_out).sum(1) < 0).sum())
+    angles = triangle_angles(verts, tris)
+    moves = np.linalg.norm(verts - input_verts, axis=1)
+    counts = {}
+    for face in faces:
+        for a, b in zip(face, face[1:] + face[:1]):
+            k = (min(a, b), max(a, b))
+            counts[k] = counts.get(k, 0) + 1
+    out = {
+        "flipped": flipped,
+        "twisted": twisted_quads(verts, faces),
+        "angles_lt20": int((angles < 20).sum()),
+        "min_angle": float(angles.min()),
+        "max_move": float(moves.max() / unit),
+        "curv_var": curvature_variation(verts, faces, adj, edge_len),
+    }
+    if is_closed(counts):
+        v0 = signed_volume(input_verts, tris)
+        out["volume_change"] = (signed_volume(verts, tris) - v0) / abs(v0)
+    if truth is not None:
+        sel = np.ones(n, dtype=bool) if truth_margin is None else truth.inside_crop(verts, truth_margin)
+        d = truth.distances(verts[sel])
+        out["truth_rms"] = float(np.sqrt((d * d).mean()))
+        out["truth_median"] = float(np.median(d))
+    return out
+
+
+if __name__ == "__main__":
+    # meshmetrics.py INPUT.obj OUTPUT.obj [PROB.nii.gz [MARGIN]]
+    vin, faces = read_obj(sys.argv[1])
+    vout, faces_out = read_obj(sys.argv[2])
+    truth = Truth(sys.argv[3]) if len(sys.argv) > 3 else None
+    margin = float(sys.argv[4]) if len(sys.argv) > 4 else None
+    print(measure(vin, faces, vout, voxel=truth.voxel if truth else None, truth=truth, truth_margin=margin))
