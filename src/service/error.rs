@@ -142,7 +142,9 @@ impl Code {
                 | ErrorCode::UnsupportedPrimitiveMode
                 | ErrorCode::GltfInvalid
                 | ErrorCode::GlbInvalid
-                | ErrorCode::ParameterOutOfRange => StatusCode::UNPROCESSABLE_ENTITY,
+                | ErrorCode::ParameterOutOfRange
+                | ErrorCode::VertexValenceTooHigh
+                | ErrorCode::FaceTooLarge => StatusCode::UNPROCESSABLE_ENTITY,
                 ErrorCode::Cancelled => StatusCode::CONFLICT,
                 // Encoding into memory: a failure is ours, not the client's.
                 ErrorCode::PositionCountMismatch | ErrorCode::IoError => {

@@ -217,6 +217,22 @@ async fn every_bad_upload_gets_its_status_and_code() {
         .await;
     assert_eq!(r.status, StatusCode::OK, "{}", r.text());
     assert_eq!(obj_stats(&r.text()).0.len(), obj_stats(&obj).0.len());
+    // A fan whose hub has more edges than smoothing takes is read, then
+    // refused by the job with its code, not a worker busy for minutes.
+    let mut fan = String::from("v 0 0 0\n");
+    let n = 5000;
+    for i in 0..n {
+        let a = std::f64::consts::TAU * i as f64 / n as f64;
+        fan.push_str(&format!("v {} {} 0\n", a.cos(), a.sin()));
+    }
+    for i in 0..n {
+        fan.push_str(&format!("f 1 {} {}\n", i + 2, (i + 1) % n + 2));
+    }
+    let p = server
+        .send(Req::raw("/v1/smooth", "model/obj", fan))
+        .await
+        .problem(422, "vertex_valence_too_high");
+    assert!(p["detail"].as_str().unwrap().contains("5000 edges"), "{p}");
 }
 
 #[tokio::test]

@@ -45,6 +45,44 @@ impl MeshError {
     }
 }
 
+/// A mesh whose shape would make smoothing cost grow faster than its size:
+/// the ring walks and fits visit every neighbour of every vertex in a
+/// ring, so one vertex of valence `d` costs `d^2` across its neighbours'
+/// walks, and one face of `n` corners costs `n^2` across its corners.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum ShapeError {
+    /// A vertex has more edges than smoothing takes.
+    #[error(
+        "vertex {vertex} has {valence} edges; smoothing takes vertices of at most {limit} \
+         (a fan this wide makes every ring walk around it cost its square)"
+    )]
+    ValenceTooHigh {
+        vertex: usize,
+        valence: usize,
+        limit: usize,
+    },
+    /// A face has more corners than smoothing takes.
+    #[error(
+        "face {face} has {arity} corners; smoothing takes faces of at most {limit} corners \
+         (split it into smaller polygons)"
+    )]
+    FaceTooLarge {
+        face: usize,
+        arity: usize,
+        limit: usize,
+    },
+}
+
+impl ShapeError {
+    /// Stable code for machine consumers.
+    pub fn code(&self) -> ErrorCode {
+        match self {
+            ShapeError::ValenceTooHigh { .. } => ErrorCode::VertexValenceTooHigh,
+            ShapeError::FaceTooLarge { .. } => ErrorCode::FaceTooLarge,
+        }
+    }
+}
+
 /// Declares [`ErrorCode`] with each variant's snake_case text.
 macro_rules! error_codes {
     ($($(#[$doc:meta])* $variant:ident = $text:literal,)*) => {
@@ -106,6 +144,10 @@ error_codes! {
     GlbInvalid = "glb_invalid",
     /// A parameter is out of its range.
     ParameterOutOfRange = "parameter_out_of_range",
+    /// A vertex has more edges than smoothing takes ([`ShapeError`]).
+    VertexValenceTooHigh = "vertex_valence_too_high",
+    /// A face has more corners than smoothing takes ([`ShapeError`]).
+    FaceTooLarge = "face_too_large",
     /// The run was cancelled.
     Cancelled = "cancelled",
 }

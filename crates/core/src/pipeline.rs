@@ -4,7 +4,7 @@
 //! stages, or a baseline), fix the quality, measure, and the report.
 
 use crate::control::{Cancelled, Progress, Stage, check};
-use crate::error::ErrorCode;
+use crate::error::{ErrorCode, ShapeError};
 use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length, signed_volume};
@@ -38,6 +38,10 @@ pub enum SmoothError {
     /// The cancellation flag was raised.
     #[error(transparent)]
     Cancelled(#[from] Cancelled),
+    /// The mesh's shape would make the run's cost grow faster than its
+    /// size ([`check_shape`]).
+    #[error(transparent)]
+    Shape(#[from] ShapeError),
 }
 
 impl SmoothError {
@@ -46,8 +50,49 @@ impl SmoothError {
         match self {
             SmoothError::Params(e) => e.code(),
             SmoothError::Cancelled(_) => ErrorCode::Cancelled,
+            SmoothError::Shape(e) => e.code(),
         }
     }
+}
+
+/// The most edges a vertex may have for smoothing: every ring walk through
+/// a vertex scans all its neighbours, so a vertex of valence `d` costs
+/// about `d^2` over its neighbours' walks. Poles of latitude-longitude
+/// spheres and cone tips reach a few hundred; a thousand keeps a hub's cost
+/// near that of a thousand ordinary vertices' walks.
+pub const MAX_VALENCE: usize = 1000;
+
+/// The most corners a face may have for smoothing: normals, fits and the
+/// quality fixes visit a face once from each corner, so a face of `n`
+/// corners costs `n^2`. Real polygons have a handful of corners; the
+/// largest in the test data is a 66-gon.
+pub const MAX_FACE_CORNERS: usize = 1000;
+
+/// Refuses a mesh with a vertex of more than [`MAX_VALENCE`] edges or a
+/// face of more than [`MAX_FACE_CORNERS`] corners, in time linear in the
+/// mesh, before any stage whose cost would grow with their square.
+pub fn check_shape(mesh: &Mesh, topo: &Topology) -> Result<(), ShapeError> {
+    if let Some((face, arity)) = (0..mesh.num_faces())
+        .map(|f| (f, mesh.face(f).len()))
+        .find(|&(_, n)| n > MAX_FACE_CORNERS)
+    {
+        return Err(ShapeError::FaceTooLarge {
+            face,
+            arity,
+            limit: MAX_FACE_CORNERS,
+        });
+    }
+    if let Some((vertex, valence)) = (0..topo.num_vertices())
+        .map(|v| (v, topo.neighbors(v).len()))
+        .find(|&(_, d)| d > MAX_VALENCE)
+    {
+        return Err(ShapeError::ValenceTooHigh {
+            vertex,
+            valence,
+            limit: MAX_VALENCE,
+        });
+    }
+    Ok(())
 }
 
 /// Per-vertex results of a run, one entry per vertex each.
@@ -443,7 +488,7 @@ pub fn run(
     let _enter = span.enter();
     let mut timings = Timings::default();
     progress.update(Stage::Analyse, 0.0);
-    let (topo, movable, mut report) = timings.time(Stage::Analyse, || analyse(mesh, params));
+    let (topo, movable, mut report) = timings.time(Stage::Analyse, || analyse(mesh, params))?;
     progress.update(Stage::Analyse, 1.0);
     check(cancel)?;
     let bound = params
@@ -553,9 +598,13 @@ impl PerVertex {
 
 /// The analyse stage: topology, the movable vertices, and a report with
 /// the mesh statistics and the input's measures.
-fn analyse(mesh: &Mesh, params: &Params) -> (Topology, Vec<bool>, QualityReport) {
+fn analyse(
+    mesh: &Mesh,
+    params: &Params,
+) -> Result<(Topology, Vec<bool>, QualityReport), ShapeError> {
     let input = mesh.positions();
     let topo = Topology::build(mesh);
+    check_shape(mesh, &topo)?;
     let movable = movable_mask(&topo, params.boundary);
     // Wang-Yu's first initial pass fits the input's 2-rings anyway: the
     // input's curvature variation comes from those fits.
@@ -577,7 +626,7 @@ fn analyse(mesh: &Mesh, params: &Params) -> (Topology, Vec<bool>, QualityReport)
     );
     let mut report = QualityReport::new(statistics, Reproducibility::new(params));
     report.stages.input = Some(input_measures);
-    (topo, movable, report)
+    Ok((topo, movable, report))
 }
 
 /// Puts the Wang-Yu stages' results in `report` (the input's curvature
@@ -660,7 +709,10 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
             run.movable,
             target,
             max_offset,
-            |moved| defect_count(mesh, moved, input) <= defects,
+            |moved| {
+                run.quality_bound.is_none_or(|b| b.allows_all(input, moved))
+                    && defect_count(mesh, moved, input) <= defects
+            },
         );
     }
     run.quality_fidelity.apply(positions);
@@ -698,18 +750,29 @@ fn final_warnings(params: &Params, report: &mut QualityReport, volume_warned: bo
 
 /// Measures a mesh without smoothing it: the report's `input` stage (with
 /// curvature from 2-ring fits) and the mesh statistics.
+/// A mesh [`check_shape`] refuses is measured without the curvature (whose
+/// fits would cost the square of its largest valence or face), and the
+/// report's warnings say why.
 pub fn measure(mesh: &Mesh, params: &Params) -> QualityReport {
     let topo = Topology::build(mesh);
-    let curvature = stage_curvature(mesh, &topo, mesh.positions(), params);
+    let shape = check_shape(mesh, &topo);
+    let curvature = shape
+        .is_ok()
+        .then(|| stage_curvature(mesh, &topo, mesh.positions(), params));
     let mut report = QualityReport::new(mesh_statistics(mesh, &topo), Reproducibility::new(params));
     report.stages.input = Some(measure_stage(
         mesh,
         &topo,
         mesh.positions(),
         mesh.positions(),
-        Some(&curvature),
+        curvature.as_deref(),
         params.quality.short_edge_fraction,
     ));
+    if let Err(e) = shape {
+        report.warnings.push(format!(
+            "no curvature measured and no smoothing possible: {e}"
+        ));
+    }
     report
 }
 

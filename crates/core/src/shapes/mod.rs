@@ -11,9 +11,14 @@
 
 mod ellipsoid;
 mod marching_cubes;
+mod segmentation;
 mod voxel;
 
 pub use marching_cubes::marching_cubes_mesh;
+pub use segmentation::{
+    FoldedSheet, Placed, Shell, SpherePair, folded_sheet, placed, placement, shell, sphere_pair,
+    tube,
+};
 pub use voxel::{VOXEL_MARGIN, VoxelMask, voxel_boundary_mesh, voxel_mask};
 
 use crate::mesh::Mesh;

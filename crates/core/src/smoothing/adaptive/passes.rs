@@ -278,8 +278,19 @@ mod tests {
         let mut start = mesh.positions().to_vec();
         let movable = vec![true; mesh.num_vertices()];
         let never = AtomicBool::new(false);
-        initial_passes(mesh, topo, &mut start, &movable, 56, 0.0, 3, &never, |_| {})
-            .expect("not cancelled");
+        initial_passes(
+            mesh,
+            topo,
+            &mut start,
+            &movable,
+            56,
+            0.0,
+            3,
+            &crate::smoothing::fidelity::Fidelity::unbounded(),
+            &never,
+            |_| {},
+        )
+        .expect("not cancelled");
         start
     }
 
