@@ -125,6 +125,18 @@ pub struct Params {
     /// across a fold, and fitting it would pull both sides together (open
     /// in the paper). 180 keeps every neighbour. Default 60; range 0..=180.
     pub max_normal_angle_deg: f64,
+    /// A vertex whose adaptive neighbourhood stays within this many rings
+    /// lies on the shape, not on the staircase: the curvature changes
+    /// within a few rings of it (a gyrus, a thin tube). The initial passes
+    /// already removed the staircase there, and further passes with fits
+    /// that small would flatten the shape, so it makes only
+    /// `shape_passes` adaptive passes. 2 is the initial passes' ring: the
+    /// vertices whose growth stopped at once. Default 2; range 0..=32 (0:
+    /// no vertex stops).
+    pub shape_ring: u32,
+    /// Adaptive passes of the vertices on the shape (`shape_ring`).
+    /// Default 4; range 0..=200 (at least `adaptive_passes`: they make all).
+    pub shape_passes: u32,
     /// The fidelity bound: how far a vertex may end from its input
     /// position, in its mean input edge lengths. A vertex of a voxel
     /// lattice is held in the box of this half-width along the lattice's
@@ -181,6 +193,8 @@ impl Default for Params {
             curvature_std_bound: 0.05,
             bias_bound: 0.06,
             max_normal_angle_deg: 60.0,
+            shape_ring: 2,
+            shape_passes: 4,
             max_displacement: Some(0.5),
             boundary: BoundaryRule::Fixed,
             preserve_volume: true,
@@ -276,6 +290,8 @@ impl Params {
         check_u32("k_max", self.k_max, 2, 32, "2..=32")?;
         check_u32("max_fit_points", self.max_fit_points, 6, 512, "6..=512")?;
         check_u32("curvature_ring", self.curvature_ring, 2, 32, "2..=32")?;
+        check_u32("shape_ring", self.shape_ring, 0, 32, "0..=32")?;
+        check_u32("shape_passes", self.shape_passes, 0, 200, "0..=200")?;
         for (field, v, hi, allowed) in [
             ("tolerance_h", self.tolerance_h, 10.0, "0..=10"),
             ("tolerance_k", self.tolerance_k, 10.0, "0..=10"),

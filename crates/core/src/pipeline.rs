@@ -289,6 +289,8 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
             },
             min_cos: params.min_normal_cos(),
             fidelity: Some(run.fidelity),
+            shape_ring: params.shape_ring.min(u32::from(u8::MAX)) as u8,
+            shape_passes: params.shape_passes,
         };
         adaptive_passes(mesh, topo, &mut positions, grown, settings, cancel, |p| {
             progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64)

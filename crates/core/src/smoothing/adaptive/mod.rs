@@ -35,8 +35,8 @@ pub mod seeds;
 
 pub use growth::{AdaptiveNeighbourhoods, GrowthRule, adaptive_neighbourhoods, agreement_masks};
 pub use passes::{
-    EarlyStop, FLAT_MOMENTUM, FLAT_RING, PassPlan, REFIT_TOLERANCE, flat_passes, is_refit_pass,
-    smooth_passes,
+    EarlyStop, FLAT_MOMENTUM, FLAT_RING, PassPlan, REFIT_TOLERANCE, ShapeStop, flat_passes,
+    is_refit_pass, smooth_passes,
 };
 
 use crate::control::Cancelled;
@@ -92,6 +92,11 @@ pub struct PassSettings<'a> {
     pub min_cos: f64,
     /// The fidelity bound every pass keeps to; `None`: no bound.
     pub fidelity: Option<&'a Fidelity<'a>>,
+    /// Vertices whose neighbourhood stayed within this many rings lie on
+    /// the shape and make only `shape_passes` passes ([`ShapeStop`]).
+    pub shape_ring: u8,
+    /// Passes of the vertices on the shape.
+    pub shape_passes: u32,
 }
 
 /// The adaptive passes over the `grown` neighbourhoods, moving `positions`
@@ -110,6 +115,7 @@ pub fn adaptive_passes(
 ) -> Result<(FitStats, Vec<u8>), Cancelled> {
     let AdaptiveNeighbourhoods { hoods, ring } = grown;
     let flat: Vec<bool> = ring.par_iter().map(|&k| k >= FLAT_RING).collect();
+    let on_shape: Vec<bool> = ring.par_iter().map(|&k| k <= settings.shape_ring).collect();
     let plan = PassPlan {
         hoods: &hoods,
         movable: settings.movable,
@@ -124,6 +130,10 @@ pub fn adaptive_passes(
             passes: flat_passes(settings.passes),
         }),
         fidelity: settings.fidelity,
+        shape_stop: Some(ShapeStop {
+            vertices: &on_shape,
+            passes: settings.shape_passes,
+        }),
     };
     let stats = smooth_passes(mesh, topo, positions, &plan, cancel, on_pass)?;
     Ok((stats, ring))

@@ -108,6 +108,23 @@ pub struct PassPlan<'a> {
     pub early: Option<EarlyStop<'a>>,
     /// The fidelity bound every pass keeps to; `None`: no bound.
     pub fidelity: Option<&'a Fidelity<'a>>,
+    /// Vertices that stop after a few passes because they lie on the
+    /// shape, not on the staircase ([`ShapeStop`]).
+    pub shape_stop: Option<ShapeStop<'a>>,
+}
+
+/// Vertices whose adaptive neighbourhood could not grow beyond the rings
+/// of the initial passes: the curvature changes within a few rings of
+/// them, so they lie on the shape itself (a gyrus, a thin tube), where the
+/// initial passes already removed the staircase. More passes of fits that
+/// small only flatten the shape; these vertices stop after `passes` passes
+/// while the others go on.
+#[derive(Debug, Clone, Copy)]
+pub struct ShapeStop<'a> {
+    /// Whether each vertex stops.
+    pub vertices: &'a [bool],
+    /// Passes they make (passes `0..passes`).
+    pub passes: u32,
 }
 
 /// Runs `plan.passes` passes over `plan.hoods` starting from `positions` (updated in
@@ -141,6 +158,7 @@ pub fn smooth_passes(
         refit_tolerance,
         early,
         fidelity,
+        shape_stop,
     } = *plan;
     let mut moves = vec![Vec3::ZERO; positions.len()];
     let last = passes.saturating_sub(1);
@@ -163,6 +181,16 @@ pub fn smooth_passes(
                 movable
                     .iter()
                     .zip(e.vertices)
+                    .map(|(&m, &stops)| m && !stops)
+                    .collect(),
+            );
+        }
+        if let Some(stop) = shape_stop.filter(|s| s.passes == pass) {
+            let moving = still.as_deref().unwrap_or(movable);
+            still = Some(
+                moving
+                    .iter()
+                    .zip(stop.vertices)
                     .map(|(&m, &stops)| m && !stops)
                     .collect(),
             );
@@ -324,6 +352,7 @@ mod tests {
                     refit_tolerance: tolerance,
                     early: None,
                     fidelity: None,
+                    shape_stop: None,
                 },
                 &never,
                 |_| {},
@@ -402,6 +431,7 @@ mod tests {
                         passes: 3,
                     }),
                     fidelity: None,
+                    shape_stop: None,
                 },
                 &never,
                 |_| {},
@@ -446,6 +476,7 @@ mod tests {
                     refit_tolerance: Some(REFIT_TOLERANCE),
                     early,
                     fidelity: None,
+                    shape_stop: None,
                 },
                 &never,
                 |_| {},
