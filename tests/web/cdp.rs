@@ -174,28 +174,41 @@ impl Browser {
         assert!(r.get("errorText").is_none(), "navigate to {url}: {r}");
     }
 
-    /// Evaluates `expression` in the page (promises awaited); its value.
-    pub fn eval(&mut self, expression: &str) -> Value {
+    /// Evaluates `expression` in the page (promises awaited): its value,
+    /// or the exception it threw.
+    pub fn try_eval(&mut self, expression: &str) -> Result<Value, Value> {
         let r = self.call(
             "Runtime.evaluate",
             json!({"expression": expression, "returnByValue": true, "awaitPromise": true}),
         );
-        if let Some(e) = r.get("exceptionDetails") {
-            panic!("`{expression}` threw: {e}");
+        match r.get("exceptionDetails") {
+            Some(e) => Err(e.clone()),
+            None => Ok(r["result"]["value"].clone()),
         }
-        r["result"]["value"].clone()
     }
 
-    /// Polls `expression` until it is true; panics with `describe`'s value
-    /// after `timeout`.
+    /// [`Browser::try_eval`], panicking on an exception.
+    pub fn eval(&mut self, expression: &str) -> Value {
+        self.try_eval(expression)
+            .unwrap_or_else(|e| panic!("`{expression}` threw: {e}"))
+    }
+
+    /// Polls `expression` until it is true (an exception counts as not
+    /// yet: the page may be loading); panics with `describe`'s value after
+    /// `timeout`.
     pub fn wait_for(&mut self, expression: &str, timeout: Duration, describe: &str) {
         let start = Instant::now();
-        while self.eval(expression) != json!(true) {
-            assert!(
-                start.elapsed() < timeout,
-                "`{expression}` not true after {timeout:?}: {}",
-                self.eval(describe)
-            );
+        loop {
+            let value = self.try_eval(expression);
+            if value == Ok(json!(true)) {
+                return;
+            }
+            if start.elapsed() > timeout {
+                panic!(
+                    "`{expression}` not true after {timeout:?} ({value:?}): {:?}",
+                    self.try_eval(describe)
+                );
+            }
             std::thread::sleep(Duration::from_millis(50));
         }
     }

@@ -144,7 +144,9 @@ function buildField(path, key, prop, def) {
   err.id = `${id}-error`;
   err.setAttribute('aria-live', 'polite');
   input.setAttribute('aria-describedby', `${id}-help ${id}-error`);
-  const text = help(`${prop.description ?? ''} Default: ${JSON.stringify(def ?? null)}.`);
+  const description = prop.description ?? '';
+  const text = help(/\bDefault\b/.test(description) ? description
+    : `${description} Default: ${JSON.stringify(def ?? null)}.`);
   text.id = `${id}-help`;
   row.append(label, input, err, text);
   return row;
