@@ -240,7 +240,9 @@ impl Browser {
                    "eventsEnabled": true}),
         );
         let first = self.events.len();
-        self.eval(&format!("document.querySelector({selector:?}).click(), true"));
+        self.eval(&format!(
+            "document.querySelector({selector:?}).click(), true"
+        ));
         let start = Instant::now();
         loop {
             self.drain();
@@ -284,7 +286,9 @@ impl Browser {
         for e in &self.events {
             let p = &e["params"];
             match e["method"].as_str() {
-                Some("Runtime.consoleAPICalled") if p["type"] == "error" || p["type"] == "assert" => {
+                Some("Runtime.consoleAPICalled")
+                    if p["type"] == "error" || p["type"] == "assert" =>
+                {
                     errors.push(format!("console.{}: {}", p["type"], p["args"]));
                 }
                 Some("Runtime.exceptionThrown") => {

@@ -85,6 +85,9 @@ fn open_page(test: &str) -> (Server, Browser, PathBuf) {
 /// Uploads `file` through the file input and waits for a final state;
 /// returns it and the milliseconds the page took.
 fn upload(browser: &mut Browser, file: &Path) -> (String, Duration) {
+    // A state no upload leaves, so a previous final state is not taken
+    // for this upload's.
+    browser.eval("document.body.dataset.state = 'test-upload', true");
     let start = Instant::now();
     browser.set_file("#file", file);
     browser.wait_for(
@@ -163,8 +166,43 @@ fn a_voxel_sphere_obj_is_smoothed_shown_and_downloaded() {
         "{legend}"
     );
     browser.screenshot(&dir.join("labels.png"));
+
+    // Without the quality fixes the adaptive result keeps some folds: the
+    // page finds as many flipped faces as the report counts inverted ones
+    // (each a quad with one split triangle turned over), and none with them.
+    assert_eq!(flipped_and_reported(&mut browser), (0, 0));
+    browser.eval(
+        "(() => { document.getElementById('p-quality-enabled').checked = false; return true; })()",
+    );
+    let (state, _) = upload(&mut browser, &file);
+    assert_eq!(state, "done", "{}", browser.eval(DESCRIBE));
+    browser.wait_for(
+        "document.body.dataset.before === 'shown'",
+        JOB_TIMEOUT,
+        DESCRIBE,
+    );
+    let (flipped, reported) = flipped_and_reported(&mut browser);
+    assert!(reported > 0, "no inverted faces without the quality fixes");
+    assert!(
+        flipped >= reported && flipped <= 2 * reported,
+        "page: {flipped} flipped triangles, report: {reported} inverted faces"
+    );
+    browser.screenshot(&dir.join("flipped.png"));
     let errors = browser.errors(&[]);
     assert!(errors.is_empty(), "console errors: {errors:#?}");
+}
+
+/// Flipped triangles the page marks, and the report's inverted faces.
+fn flipped_and_reported(browser: &mut Browser) -> (u64, u64) {
+    let flipped = browser.eval("Number(document.getElementById('flipped').dataset.count)");
+    let reported = browser.eval(
+        "fetch(document.getElementById('download-report').href).then((r) => r.json())\
+         .then((r) => r.stages.final.inverted_faces)",
+    );
+    (
+        flipped.as_u64().expect("flipped count"),
+        reported.as_u64().expect("inverted_faces"),
+    )
 }
 
 #[test]

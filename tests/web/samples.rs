@@ -66,8 +66,16 @@ async fn the_server_offers_every_sample() {
         let file = entry["file"].as_str().unwrap();
         let r = server.get(entry["url"].as_str().unwrap()).await;
         assert_eq!(r.status, StatusCode::OK, "{file}");
-        let committed = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("samples").join(file)).unwrap();
-        assert!(r.body == committed, "{file} served differs from samples/{file}");
+        let committed = std::fs::read(
+            Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("samples")
+                .join(file),
+        )
+        .unwrap();
+        assert!(
+            r.body == committed,
+            "{file} served differs from samples/{file}"
+        );
         assert_eq!(entry["bytes"], committed.len(), "{file}");
     }
 }
@@ -77,19 +85,60 @@ async fn the_page_and_its_assets_are_served() {
     let server = Server::start(&[]);
     let page = server.get("/").await;
     assert_eq!(page.status, StatusCode::OK);
-    assert_eq!(page.header("content-type"), Some("text/html; charset=utf-8"));
-    assert!(page.header("content-security-policy").is_some_and(|c| c.contains("default-src 'self'")));
+    assert_eq!(
+        page.header("content-type"),
+        Some("text/html; charset=utf-8")
+    );
+    assert!(
+        page.header("content-security-policy")
+            .is_some_and(|c| c.contains("default-src 'self'"))
+    );
     let html = page.text();
     for asset in ["/web/style.css", "/web/app.js"] {
         assert!(html.contains(asset), "{asset}");
         let r = server.get(asset).await;
         assert_eq!(r.status, StatusCode::OK, "{asset}");
     }
-    for asset in ["/web/glb.js", "/web/vendor/three.min.js", "/web/vendor/LICENSE-three.txt"] {
+    for asset in [
+        "/web/glb.js",
+        "/web/vendor/three.min.js",
+        "/web/vendor/LICENSE-three.txt",
+    ] {
         let r = server.get(asset).await;
         assert_eq!(r.status, StatusCode::OK, "{asset}");
         assert!(!r.body.is_empty(), "{asset}");
     }
     let r = server.get("/web/nothing.js").await;
     r.problem(404, "not_found");
+}
+
+/// Every `THREE.X` the page's script uses is exported by the vendored
+/// minimal build's entry (`src/service/web/vendor/three-entry.js`).
+#[test]
+fn the_minimal_three_build_exports_what_the_page_uses() {
+    let web = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/service/web");
+    let app = std::fs::read_to_string(web.join("app.js")).unwrap();
+    let entry = std::fs::read_to_string(web.join("vendor/three-entry.js")).unwrap();
+    let exported: Vec<&str> = entry
+        .split(|c: char| !c.is_ascii_alphanumeric())
+        .filter(|w| !w.is_empty())
+        .collect();
+    let mut used: Vec<&str> = app
+        .split("THREE.")
+        .skip(1)
+        .map(|rest| {
+            let end = rest
+                .find(|c: char| !c.is_ascii_alphanumeric())
+                .unwrap_or(rest.len());
+            &rest[..end]
+        })
+        .collect();
+    used.sort_unstable();
+    used.dedup();
+    assert!(used.len() > 5, "{used:?}");
+    let missing: Vec<&&str> = used.iter().filter(|u| !exported.contains(u)).collect();
+    assert!(
+        missing.is_empty(),
+        "three-entry.js lacks {missing:?}: add them and rebuild three.min.js (vendor/README.md)"
+    );
 }

@@ -24,6 +24,7 @@ const PAGE_PARAMS = new Set(['vertex_results']);
 let schema = null;
 let current = null; // { id, events, before } of the job on screen
 let started = 0; // performance.now() when the upload started
+let reportInverted = null; // the report's final inverted_faces, once known
 
 function setState(state) {
   document.body.dataset.state = state;
@@ -248,6 +249,7 @@ async function start(file) {
   $('downloads').hidden = true;
   $('summary').replaceChildren();
   clearHistogram();
+  reportInverted = null;
   view.clear();
   setState('uploading');
   started = performance.now();
@@ -377,6 +379,7 @@ const view = (() => {
   controls.addEventListener('change', () => render());
   const scenes = {};
   const meshes = {};
+  const overlays = [];
   const lights = [];
   for (const side of ['before', 'after']) {
     const scene = new THREE.Scene();
@@ -444,6 +447,51 @@ const view = (() => {
     scenes[side].add(mesh);
     if (side === 'after' || !meshes.after) frame(geometry.boundingSphere);
     recolour();
+    markFlipped();
+  }
+
+  /** Highlights, on both sides, the triangles whose normal turned more
+   * than 90° from the input's: the folds. Before and after share vertex
+   * order and triangles, so this is a per-triangle comparison. */
+  function markFlipped() {
+    for (const o of overlays.splice(0)) {
+      o.parent?.remove(o);
+      o.geometry.dispose();
+    }
+    const info = $('flipped');
+    if (!meshes.before || !meshes.after) {
+      info.textContent = '';
+      delete info.dataset.count;
+      return;
+    }
+    const a = meshes.before.geometry;
+    const b = meshes.after.geometry;
+    const idx = b.index.array;
+    if (a.index.array.length !== idx.length || a.attributes.position.count !== b.attributes.position.count) {
+      info.textContent = 'Flipped faces: before and after differ in size; not compared.';
+      return;
+    }
+    const pa = a.attributes.position.array;
+    const pb = b.attributes.position.array;
+    const flipped = [];
+    for (let t = 0; t < idx.length; t += 3) {
+      if (dotOfNormals(pa, pb, idx[t], idx[t + 1], idx[t + 2]) < 0) flipped.push(idx[t], idx[t + 1], idx[t + 2]);
+    }
+    info.dataset.count = String(flipped.length / 3);
+    info.textContent = `${flipped.length / 3} triangles flipped relative to the input`
+      + (flipped.length ? ' (red)' : '') + (reportInverted === null ? '' : `; the report counts ${reportInverted} inverted faces.`);
+    if (!flipped.length || !$('show-flipped').checked) return render();
+    for (const side of ['before', 'after']) {
+      const g = new THREE.BufferGeometry();
+      g.setAttribute('position', meshes[side].geometry.attributes.position);
+      g.setIndex(new THREE.BufferAttribute(Uint32Array.from(flipped), 1));
+      const m = new THREE.Mesh(g, new THREE.MeshBasicMaterial({
+        color: 0xe00000, side: THREE.DoubleSide, polygonOffset: true, polygonOffsetFactor: -2, polygonOffsetUnits: -2,
+      }));
+      scenes[side].add(m);
+      overlays.push(m);
+    }
+    render();
   }
 
   function frame(sphere) {
@@ -510,7 +558,7 @@ const view = (() => {
       delete meshes[side];
     }
     $('legend').replaceChildren();
-    render();
+    markFlipped();
   }
 
   canvas.addEventListener('keydown', (e) => {
@@ -528,8 +576,21 @@ const view = (() => {
   $('colour').addEventListener('change', recolour);
   $('wireframe').addEventListener('change', (e) => setWireframe(e.target.checked));
   $('reset-view').addEventListener('click', () => controls.reset());
-  return { setMesh, render, clear };
+  $('show-flipped').addEventListener('change', markFlipped);
+  return { setMesh, render, clear, markFlipped };
 })();
+
+/** Dot product of the normals of triangle (i, j, k) in positions `a` and `b`. */
+function dotOfNormals(a, b, i, j, k) {
+  const n = (p) => {
+    const ux = p[3 * j] - p[3 * i], uy = p[3 * j + 1] - p[3 * i + 1], uz = p[3 * j + 2] - p[3 * i + 2];
+    const vx = p[3 * k] - p[3 * i], vy = p[3 * k + 1] - p[3 * i + 1], vz = p[3 * k + 2] - p[3 * i + 2];
+    return [uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx];
+  };
+  const x = n(a);
+  const y = n(b);
+  return x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+}
 
 function percentile(values, q) {
   const sorted = Float32Array.from(values).sort();
@@ -578,7 +639,7 @@ function clearHistogram() {
 function drawHistogram(input, result) {
   const c = $('histogram');
   const g = c.getContext('2d');
-  const pad = { l: 40, r: 24, t: 24, b: 28 };
+  const pad = { l: 56, r: 24, t: 24, b: 28 };
   const w = c.width - pad.l - pad.r;
   const h = c.height - pad.t - pad.b;
   const bins = input.length;
@@ -642,6 +703,8 @@ function heading(text) {
 
 function showReport(job, report) {
   const stages = report.stages ?? {};
+  reportInverted = stages.final?.inverted_faces ?? null;
+  view.markFlipped();
   const input = stages.input?.triangle_angles?.histogram ?? [];
   const result = stages.final?.triangle_angles?.histogram ?? [];
   drawHistogram(input, result);
@@ -721,7 +784,10 @@ async function init() {
   }
   const input = $('file');
   input.addEventListener('change', () => {
-    if (input.files.length) start(input.files[0]);
+    const file = input.files[0];
+    // Cleared so that picking the same file again starts again.
+    input.value = '';
+    if (file) start(file);
   });
   const drop = $('drop');
   drop.addEventListener('dragover', (e) => {

@@ -2,6 +2,6 @@
 // only what app.js uses (see README.md in this folder for the command).
 export {
   BufferAttribute, BufferGeometry, Color, DirectionalLight, DoubleSide, HemisphereLight,
-  Mesh, MeshLambertMaterial, PerspectiveCamera, Scene, Vector3, WebGLRenderer,
+  Mesh, MeshBasicMaterial, MeshLambertMaterial, PerspectiveCamera, Scene, Vector3, WebGLRenderer,
 } from 'three';
 export { OrbitControls } from 'three/examples/jsm/controls/OrbitControls.js';
