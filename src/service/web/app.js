@@ -369,8 +369,10 @@ function progress(v) {
 const view = (() => {
   const canvas = $('canvas');
   // preserveDrawingBuffer: the pixels stay readable after a frame
-  // (screenshots, "save image as", the end-to-end test).
-  const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+  // (screenshots, "save image as", the end-to-end test). Multisampling
+  // only on a GPU: a software renderer (SwiftShader, no GPU) takes about
+  // twice as long per frame with it (docs/browser.md has the figures).
+  const renderer = new THREE.WebGLRenderer({ canvas, antialias: !softwareRenderer(), preserveDrawingBuffer: true });
   renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
   renderer.setScissorTest(true);
   const camera = new THREE.PerspectiveCamera(35, 2, 0.01, 1000);
@@ -579,6 +581,15 @@ const view = (() => {
   $('show-flipped').addEventListener('change', markFlipped);
   return { setMesh, render, clear, markFlipped };
 })();
+
+/** Whether WebGL runs on a software rasteriser (no GPU). */
+function softwareRenderer() {
+  const gl = document.createElement('canvas').getContext('webgl2');
+  const info = gl?.getExtension('WEBGL_debug_renderer_info');
+  const name = info ? String(gl.getParameter(info.UNMASKED_RENDERER_WEBGL)) : '';
+  gl?.getExtension('WEBGL_lose_context')?.loseContext();
+  return /swiftshader|llvmpipe|software/i.test(name);
+}
 
 /** Dot product of the normals of triangle (i, j, k) in positions `a` and `b`. */
 function dotOfNormals(a, b, i, j, k) {
