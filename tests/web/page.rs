@@ -6,7 +6,7 @@
 //! (the path is printed).
 
 use crate::cdp::Browser;
-use crate::support::Server;
+use crate::support::{Req, Server, job_id, small_sphere};
 use meshsmooth_core::io::gltf::write_gltf_plain;
 use meshsmooth_core::io::obj::write_obj_plain;
 use meshsmooth_core::{Mesh, shapes};
@@ -64,13 +64,13 @@ fn out_dir(test: &str) -> PathBuf {
         .join(test);
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("create the output folder");
+    println!("web e2e output of {test}: {}", dir.display());
     dir
 }
 
 /// The server, a browser on `/` once the page is ready, and the folder.
 fn open_page(test: &str) -> (Server, Browser, PathBuf) {
     let dir = out_dir(test);
-    println!("web e2e output of {test}: {}", dir.display());
     let server = Server::start(&[]);
     let mut browser = Browser::launch(&dir);
     browser.open(&format!("http://{}/", server.addr));
@@ -163,6 +163,20 @@ fn a_voxel_sphere_obj_is_smoothed_shown_and_downloaded() {
         "{legend}"
     );
     browser.screenshot(&dir.join("labels.png"));
+    for (mode, expected) in [
+        ("mean_curvature", "mean curvature H"),
+        ("displacement", "displacement: 0"),
+    ] {
+        browser.eval(&format!(
+            "(() => {{ const s = document.getElementById('colour'); s.value = '{mode}'; \
+             s.dispatchEvent(new Event('change')); return true; }})()"
+        ));
+        let legend = browser.eval("document.getElementById('legend').textContent");
+        assert!(
+            legend.as_str().is_some_and(|l| l.contains(expected)),
+            "{mode}: {legend}"
+        );
+    }
 
     // Without the quality fixes the adaptive result keeps some folds: the
     // page finds as many flipped faces as the report counts inverted ones
@@ -261,6 +275,110 @@ fn refused_uploads_show_the_servers_message() {
 
     // Only the two refused requests were logged.
     let errors = browser.errors(&["status of 415", "status of 422"]);
+    assert!(errors.is_empty(), "console errors: {errors:#?}");
+}
+
+#[test]
+fn a_full_queue_is_shown_with_its_retry_after() {
+    let _one = BROWSER.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = out_dir("queue-full");
+    let server = Server::start(&["--workers", "1", "--queue-capacity", "1"]);
+    let client = server.client();
+    let runtime = tokio::runtime::Runtime::new().expect("tokio runtime");
+    // One job holds the worker, one waits: the queue is full.
+    let (obj, _, _) = small_sphere();
+    let blocking: Vec<String> = runtime.block_on(async {
+        let mut ids = Vec::new();
+        for _ in 0..2 {
+            let r = client
+                .send(
+                    Req::raw("/v1/jobs", "model/obj", obj.clone())
+                        .header("x-meshsmooth-test-hook", "sleep=60000"),
+                )
+                .await;
+            let id = job_id(&r);
+            client
+                .wait_job_until(&id, |j| j["state"] == "running" || j["state"] == "queued")
+                .await;
+            ids.push(id);
+        }
+        client
+            .wait_job_until(&ids[0], |j| j["state"] == "running")
+            .await;
+        ids
+    });
+    let mut browser = Browser::launch(&dir);
+    browser.open(&format!("http://{}/", server.addr));
+    browser.wait_for(
+        "document.body.dataset.state === 'ready'",
+        PAGE_TIMEOUT,
+        DESCRIBE,
+    );
+    let (_, mesh) = shapes::voxel_sphere(4.0);
+    let (file, _) = write_obj(&dir, "small.obj", &mesh);
+    let (state, _) = upload(&mut browser, &file);
+    assert_eq!(state, "error", "{}", browser.eval(DESCRIBE));
+    let error = browser.eval("document.getElementById('error').textContent");
+    let error = error.as_str().unwrap_or_default();
+    assert!(
+        error.contains("(503 queue_full)") && error.contains("Retry in 1 s"),
+        "{error}"
+    );
+    browser.screenshot(&dir.join("queue-full.png"));
+    println!("screenshot: {}", dir.join("queue-full.png").display());
+    let errors = browser.errors(&["status of 503"]);
+    assert!(errors.is_empty(), "console errors: {errors:#?}");
+    runtime.block_on(async {
+        for id in &blocking {
+            client.delete(&format!("/v1/jobs/{id}")).await;
+        }
+    });
+}
+
+#[test]
+fn a_queued_job_is_cancelled_from_the_page() {
+    let _one = BROWSER.lock().unwrap_or_else(|e| e.into_inner());
+    let dir = out_dir("cancel");
+    let server = Server::start(&["--workers", "1", "--queue-capacity", "4"]);
+    let client = server.client();
+    let runtime = tokio::runtime::Runtime::new().expect("tokio runtime");
+    // A job holds the only worker, so the page's job waits in the queue.
+    let (obj, _, _) = small_sphere();
+    runtime.block_on(async {
+        let r = client
+            .send(
+                Req::raw("/v1/jobs", "model/obj", obj)
+                    .header("x-meshsmooth-test-hook", "sleep=60000"),
+            )
+            .await;
+        let id = job_id(&r);
+        client
+            .wait_job_until(&id, |j| j["state"] == "running")
+            .await;
+    });
+    let mut browser = Browser::launch(&dir);
+    browser.open(&format!("http://{}/", server.addr));
+    browser.wait_for(
+        "document.body.dataset.state === 'ready'",
+        PAGE_TIMEOUT,
+        DESCRIBE,
+    );
+    let (_, mesh) = shapes::voxel_sphere(4.0);
+    let (file, _) = write_obj(&dir, "small.obj", &mesh);
+    browser.set_file("#file", &file);
+    browser.wait_for(
+        "document.getElementById('status').textContent.startsWith('Queued')",
+        PAGE_TIMEOUT,
+        DESCRIBE,
+    );
+    browser.eval("document.getElementById('cancel').click(), true");
+    browser.wait_for(
+        "document.body.dataset.state === 'cancelled'",
+        PAGE_TIMEOUT,
+        DESCRIBE,
+    );
+    browser.screenshot(&dir.join("cancelled.png"));
+    let errors = browser.errors(&[]);
     assert!(errors.is_empty(), "console errors: {errors:#?}");
 }
 
