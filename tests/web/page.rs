@@ -238,6 +238,24 @@ fn a_glb_is_smoothed_shown_and_downloaded_as_glb() {
         "{}",
         downloaded.display()
     );
+
+    // "Try a sample": the torus from samples/, coloured by mean curvature.
+    browser.eval("document.body.dataset.state = 'test-upload', true");
+    browser.eval("document.querySelector('[data-sample=\"voxel-torus.obj\"]').click(), true");
+    browser.wait_for(
+        "document.body.dataset.state === 'done' && document.body.dataset.before === 'shown'",
+        JOB_TIMEOUT,
+        DESCRIBE,
+    );
+    let status = browser.eval("document.getElementById('status').textContent");
+    assert!(
+        status.as_str().is_some_and(|s| s.contains("2284 vertices")),
+        "{status}"
+    );
+    browser.eval("(() => { const s = document.getElementById('colour'); s.value = 'mean_curvature'; s.dispatchEvent(new Event('change')); return true; })()");
+    browser.screenshot(&dir.join("sample-torus.png"));
+    let errors = browser.errors(&[]);
+    assert!(errors.is_empty(), "console errors: {errors:#?}");
 }
 
 #[test]
