@@ -243,6 +243,7 @@ async function fetchMesh(job) {
 
 async function start(file) {
   if (current?.events) current.events.close();
+  if (current?.before) fetch(`/v1/jobs/${current.before}`, { method: 'DELETE' });
   current = null;
   clearFieldErrors();
   $('error').hidden = true;
@@ -317,11 +318,13 @@ async function showBefore(file, params, job) {
       return;
     }
     const before = await r.json();
+    if (current?.id === job.id) current.before = before.id;
     const final = await follow(before, () => {});
     if (final.state !== 'succeeded' || current?.id !== job.id) return;
     const mesh = await fetchMesh(final);
     await fetch(final.links.self, { method: 'DELETE' });
     if (current?.id !== job.id) return;
+    delete current.before;
     view.setMesh('before', mesh);
     view.render();
     document.body.dataset.before = 'shown';
@@ -814,6 +817,7 @@ async function init() {
   $('cancel').addEventListener('click', async () => {
     if (!current) return;
     $('cancel').disabled = true;
+    if (current.before) fetch(`/v1/jobs/${current.before}`, { method: 'DELETE' });
     const r = await fetch(`/v1/jobs/${current.id}`, { method: 'DELETE' });
     if (!r.ok && r.status !== 404) showError(await problemMessage(r));
   });
