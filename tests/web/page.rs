@@ -68,10 +68,11 @@ fn out_dir(test: &str) -> PathBuf {
     dir
 }
 
-/// The server, a browser on `/` once the page is ready, and the folder.
-fn open_page(test: &str) -> (Server, Browser, PathBuf) {
+/// The server (with `args`), a browser on `/` once the page is ready, and
+/// the folder.
+fn open_page(test: &str, args: &[&str]) -> (Server, Browser, PathBuf) {
     let dir = out_dir(test);
-    let server = Server::start(&[]);
+    let server = Server::start(args);
     let mut browser = Browser::launch(&dir);
     browser.open(&format!("http://{}/", server.addr));
     browser.wait_for(
@@ -140,7 +141,7 @@ fn smooth_and_check(browser: &mut Browser, dir: &Path, file: &Path) -> PathBuf {
 #[test]
 fn a_voxel_sphere_obj_is_smoothed_shown_and_downloaded() {
     let _one = BROWSER.lock().unwrap_or_else(|e| e.into_inner());
-    let (_server, mut browser, dir) = open_page("voxel-sphere-obj");
+    let (_server, mut browser, dir) = open_page("voxel-sphere-obj", &[]);
     let (_, mesh) = shapes::voxel_sphere(14.0);
     let (file, _) = write_obj(&dir, "voxel-sphere.obj", &mesh);
 
@@ -219,7 +220,7 @@ fn flipped_and_reported(browser: &mut Browser) -> (u64, u64) {
 #[test]
 fn a_glb_is_smoothed_shown_and_downloaded_as_glb() {
     let _one = BROWSER.lock().unwrap_or_else(|e| e.into_inner());
-    let (_server, mut browser, dir) = open_page("mc-sphere-glb");
+    let (_server, mut browser, dir) = open_page("mc-sphere-glb", &[]);
     let (_, mesh) = shapes::mc_sphere(12.0);
     let mut glb = Vec::new();
     write_gltf_plain(&mesh, mesh.positions(), None, true, &mut glb).unwrap();
@@ -261,7 +262,7 @@ fn a_glb_is_smoothed_shown_and_downloaded_as_glb() {
 #[test]
 fn refused_uploads_show_the_servers_message() {
     let _one = BROWSER.lock().unwrap_or_else(|e| e.into_inner());
-    let (_server, mut browser, dir) = open_page("refused");
+    let (_server, mut browser, dir) = open_page("refused", &["--max-upload-bytes", "64KiB"]);
 
     // Not a mesh: 415 with the server's detail.
     let text = dir.join("notes.txt");
@@ -277,6 +278,19 @@ fn refused_uploads_show_the_servers_message() {
     );
     browser.screenshot(&dir.join("refused-415.png"));
 
+    // Over the upload limit: 413.
+    let (_, big) = shapes::voxel_sphere(14.0);
+    let (file, bytes) = write_obj(&dir, "big.obj", &big);
+    assert!(bytes > 64 << 10, "{bytes}");
+    let (state, _) = upload(&mut browser, &file);
+    assert_eq!(state, "error", "{}", browser.eval(DESCRIBE));
+    let error = browser.eval("document.getElementById('error').textContent");
+    let error = error.as_str().unwrap_or_default();
+    assert!(
+        error.starts_with("The upload is too large (413 "),
+        "{error}"
+    );
+
     // A parameter out of range: 422, the message beside the field.
     browser.eval("(() => { const k = document.getElementById('p-k-max'); k.value = '100000'; return true; })()");
     let (_, mesh) = shapes::voxel_sphere(4.0);
@@ -291,8 +305,8 @@ fn refused_uploads_show_the_servers_message() {
     browser.screenshot(&dir.join("refused-422.png"));
     println!("screenshots: {}", dir.display());
 
-    // Only the two refused requests were logged.
-    let errors = browser.errors(&["status of 415", "status of 422"]);
+    // Only the refused requests were logged.
+    let errors = browser.errors(&["status of 413", "status of 415", "status of 422"]);
     assert!(errors.is_empty(), "console errors: {errors:#?}");
 }
 
@@ -413,7 +427,7 @@ fn upload_to_first_render_of_a_large_voxel_sphere() {
         .ok()
         .and_then(|r| r.parse().ok())
         .unwrap_or(110.0);
-    let (_server, mut browser, dir) = open_page("large-sphere");
+    let (_server, mut browser, dir) = open_page("large-sphere", &[]);
     let (_, mesh) = shapes::voxel_sphere(radius);
     let (file, bytes) = write_obj(&dir, "voxel-sphere.obj", &mesh);
     let (state, wall) = upload(&mut browser, &file);
