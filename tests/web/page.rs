@@ -73,14 +73,44 @@ fn out_dir(test: &str) -> PathBuf {
 fn open_page(test: &str, args: &[&str]) -> (Server, Browser, PathBuf) {
     let dir = out_dir(test);
     let server = Server::start(args);
-    let mut browser = Browser::launch(&dir);
+    let browser = ready_page(&server, &dir);
+    (server, browser, dir)
+}
+
+/// A browser (output in `dir`) on the page of `server`, once it is ready.
+fn ready_page(server: &Server, dir: &Path) -> Browser {
+    let mut browser = Browser::launch(dir);
     browser.open(&format!("http://{}/", server.addr));
     browser.wait_for(
         "document.body.dataset.state === 'ready'",
         PAGE_TIMEOUT,
         DESCRIBE,
     );
-    (server, browser, dir)
+    browser
+}
+
+/// Submits `n` jobs that sleep for a minute (test hook): the first holds
+/// the worker (waited for), the others wait in the queue.
+fn sleeping_jobs(server: &Server, n: usize) {
+    let client = server.client();
+    let (obj, _, _) = small_sphere();
+    let runtime = tokio::runtime::Runtime::new().expect("tokio runtime");
+    runtime.block_on(async {
+        for i in 0..n {
+            let r = client
+                .send(
+                    Req::raw("/v1/jobs", "model/obj", obj.clone())
+                        .header("x-meshsmooth-test-hook", "sleep=60000"),
+                )
+                .await;
+            let id = job_id(&r);
+            if i == 0 {
+                client
+                    .wait_job_until(&id, |j| j["state"] == "running")
+                    .await;
+            }
+        }
+    });
 }
 
 /// Uploads `file` through the file input and waits for a final state;
@@ -315,37 +345,9 @@ fn a_full_queue_is_shown_with_its_retry_after() {
     let _one = BROWSER.lock().unwrap_or_else(|e| e.into_inner());
     let dir = out_dir("queue-full");
     let server = Server::start(&["--workers", "1", "--queue-capacity", "1"]);
-    let client = server.client();
-    let runtime = tokio::runtime::Runtime::new().expect("tokio runtime");
     // One job holds the worker, one waits: the queue is full.
-    let (obj, _, _) = small_sphere();
-    let blocking: Vec<String> = runtime.block_on(async {
-        let mut ids = Vec::new();
-        for _ in 0..2 {
-            let r = client
-                .send(
-                    Req::raw("/v1/jobs", "model/obj", obj.clone())
-                        .header("x-meshsmooth-test-hook", "sleep=60000"),
-                )
-                .await;
-            let id = job_id(&r);
-            client
-                .wait_job_until(&id, |j| j["state"] == "running" || j["state"] == "queued")
-                .await;
-            ids.push(id);
-        }
-        client
-            .wait_job_until(&ids[0], |j| j["state"] == "running")
-            .await;
-        ids
-    });
-    let mut browser = Browser::launch(&dir);
-    browser.open(&format!("http://{}/", server.addr));
-    browser.wait_for(
-        "document.body.dataset.state === 'ready'",
-        PAGE_TIMEOUT,
-        DESCRIBE,
-    );
+    sleeping_jobs(&server, 2);
+    let mut browser = ready_page(&server, &dir);
     let (_, mesh) = shapes::voxel_sphere(4.0);
     let (file, _) = write_obj(&dir, "small.obj", &mesh);
     let (state, _) = upload(&mut browser, &file);
@@ -360,11 +362,6 @@ fn a_full_queue_is_shown_with_its_retry_after() {
     println!("screenshot: {}", dir.join("queue-full.png").display());
     let errors = browser.errors(&["status of 503"]);
     assert!(errors.is_empty(), "console errors: {errors:#?}");
-    runtime.block_on(async {
-        for id in &blocking {
-            client.delete(&format!("/v1/jobs/{id}")).await;
-        }
-    });
 }
 
 #[test]
@@ -372,29 +369,9 @@ fn a_queued_job_is_cancelled_from_the_page() {
     let _one = BROWSER.lock().unwrap_or_else(|e| e.into_inner());
     let dir = out_dir("cancel");
     let server = Server::start(&["--workers", "1", "--queue-capacity", "4"]);
-    let client = server.client();
-    let runtime = tokio::runtime::Runtime::new().expect("tokio runtime");
     // A job holds the only worker, so the page's job waits in the queue.
-    let (obj, _, _) = small_sphere();
-    runtime.block_on(async {
-        let r = client
-            .send(
-                Req::raw("/v1/jobs", "model/obj", obj)
-                    .header("x-meshsmooth-test-hook", "sleep=60000"),
-            )
-            .await;
-        let id = job_id(&r);
-        client
-            .wait_job_until(&id, |j| j["state"] == "running")
-            .await;
-    });
-    let mut browser = Browser::launch(&dir);
-    browser.open(&format!("http://{}/", server.addr));
-    browser.wait_for(
-        "document.body.dataset.state === 'ready'",
-        PAGE_TIMEOUT,
-        DESCRIBE,
-    );
+    sleeping_jobs(&server, 1);
+    let mut browser = ready_page(&server, &dir);
     let (_, mesh) = shapes::voxel_sphere(4.0);
     let (file, _) = write_obj(&dir, "small.obj", &mesh);
     browser.set_file("#file", &file);
