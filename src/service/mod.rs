@@ -5,6 +5,7 @@
 //! - [`jobs`]: the bounded queue, the worker threads and the result store.
 //! - [`error`]: the one mapping from error codes to HTTP statuses.
 //! - [`api`]: the JSON shapes and the OpenAPI document; [`metrics`].
+//! - [`web`]: the web page at `/`, its assets and the sample meshes.
 
 pub mod api;
 pub mod config;
@@ -13,6 +14,7 @@ pub mod jobs;
 pub mod metrics;
 pub mod routes;
 pub mod upload;
+pub mod web;
 
 pub use config::ServeArgs;
 

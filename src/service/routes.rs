@@ -162,6 +162,7 @@ pub fn router(state: AppState) -> (Router, OpenApiDoc) {
     add_mesh_media_types(&mut api);
     let router = router
         .with_state(state)
+        .merge(crate::service::web::router())
         .merge(utoipa_swagger_ui::SwaggerUi::new("/docs").url("/openapi.json", api.clone()))
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
