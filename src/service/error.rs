@@ -51,6 +51,10 @@ pub fn status_of(code: &str) -> StatusCode {
         "internal_error" | "io_error" | "position_count_mismatch" | "job_panicked" => {
             StatusCode::INTERNAL_SERVER_ERROR
         }
+        // The shared job store (Redis) cannot be reached: retry shortly.
+        "store_unavailable" => StatusCode::SERVICE_UNAVAILABLE,
+        // A job whose worker died on every run (crash, kill, lost lease).
+        "job_attempts_exhausted" => StatusCode::INTERNAL_SERVER_ERROR,
         _ => StatusCode::UNPROCESSABLE_ENTITY,
     }
 }

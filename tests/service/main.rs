@@ -6,5 +6,6 @@ mod errors;
 mod jobs;
 mod operations;
 mod overload;
+mod shared;
 mod support;
 mod weld;
