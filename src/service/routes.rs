@@ -680,7 +680,8 @@ async fn job_events(
                 _ = s.shutdown.wait_for(|stopping| *stopping) => return None,
             }
         }
-        // A store that cannot be read now is retried at the next change.
+        // A store that cannot be read now ends the stream (the client
+        // reconnects, as for any event stream).
         let job = s.watch.current().await.ok()??;
         let view = JobView::of(&job, &s.jobs);
         let done = view.state.is_final();

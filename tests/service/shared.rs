@@ -143,6 +143,7 @@ async fn kill_9_of_the_replica_running_a_job_lets_the_other_finish_it() {
     assert_eq!(job["state"], "succeeded", "{job}");
     assert_eq!(job["attempts"], 2, "one extra attempt: {job}");
     assert_eq!(b.metric("meshsmooth_leases_reclaimed_total").await, 1.0);
+    assert_eq!(b.metric("meshsmooth_job_attempts_total").await, 1.0);
     let mesh = b.get(&format!("/v1/jobs/{id}/mesh")).await;
     assert_eq!(mesh.status, StatusCode::OK);
 }

@@ -54,6 +54,10 @@ pub(super) const TICK: Duration = Duration::from_millis(200);
 /// Longest a worker waits for a new queue entry before it looks for lapsed
 /// leases again.
 const IDLE_WAIT: Duration = Duration::from_millis(500);
+/// A consumer (a worker of a replica) idle this long and holding no entry
+/// belongs to a replica that is gone: a live worker touches the group at
+/// least every [`IDLE_WAIT`].
+const CONSUMER_RETIREMENT: Duration = Duration::from_secs(60);
 /// How often readers poll a job's version (event streams, one-call
 /// `/v1/smooth`).
 pub(super) const POLL: Duration = Duration::from_millis(50);
@@ -119,11 +123,12 @@ struct Meta {
 fn unavailable(e: &redis::RedisError) -> Problem {
     tracing::warn!(error = %e, "the job store (Redis) failed");
     metrics::counter!("meshsmooth_store_errors_total").increment(1);
-    Problem::new(
-        "store_unavailable",
-        "the shared job store (Redis) cannot be reached; nothing was changed, retry shortly",
-    )
-    .with_retry_after(1)
+    let detail = if e.code() == Some("OOM") {
+        "the shared job store (Redis) is out of memory; nothing was changed, retry later"
+    } else {
+        "the shared job store (Redis) cannot be reached; nothing was changed, retry shortly"
+    };
+    Problem::new("store_unavailable", detail).with_retry_after(1)
 }
 
 fn millis(t: SystemTime) -> u64 {
@@ -444,20 +449,23 @@ impl RedisStore {
         })
     }
 
-    /// Drops the budget bookkeeping of results that expired. Returns how
-    /// many.
-    pub async fn sweep(&self) -> Result<usize, Problem> {
-        let n: usize = self
-            .scripts
+    /// Drops the budget bookkeeping of results that expired, and the
+    /// consumers of replicas gone long ago (idle, holding nothing). Returns
+    /// how many results. Errors are left to the requests and the workers
+    /// to report.
+    pub async fn sweep(&self) -> redis::RedisResult<usize> {
+        let gone = (self.settings.lease * 10).max(CONSUMER_RETIREMENT);
+        self.scripts
             .sweep
             .key(key("results"))
             .key(key("result_sizes"))
             .key(key("result_bytes"))
+            .key(key("queue"))
             .arg(PREFIX)
+            .arg(GROUP)
+            .arg(gone.as_millis() as u64)
             .invoke_async(&mut self.conn())
             .await
-            .map_err(|e| unavailable(&e))?;
-        Ok(n)
     }
 
     /// A connection of its own for worker `worker`'s blocking waits.
@@ -1100,10 +1108,21 @@ end
 return 'forgotten'
 ";
 
-/// KEYS: results, result_sizes, result_bytes. ARGV: prefix. Drops the
-/// bookkeeping of the oldest results whose job expired (results expire in
-/// finishing order, so the first live one ends the sweep).
+/// KEYS: results, result_sizes, result_bytes, queue. ARGV: prefix, group,
+/// consumer idle ms. Drops the bookkeeping of the oldest results whose job
+/// expired (results expire in finishing order, so the first live one ends
+/// the sweep), then the consumers idle that long with nothing pending.
 const SWEEP: &str = r"
+local consumers = redis.pcall('XINFO', 'CONSUMERS', KEYS[4], ARGV[2])
+if type(consumers) == 'table' and not consumers.err then
+  for _, c in ipairs(consumers) do
+    local fields = {}
+    for i = 1, #c, 2 do fields[c[i]] = c[i + 1] end
+    if fields['pending'] == 0 and fields['idle'] > tonumber(ARGV[3]) then
+      redis.call('XGROUP', 'DELCONSUMER', KEYS[4], ARGV[2], fields['name'])
+    end
+  end
+end
 local n = 0
 while n < 1000 do
   local oldest = redis.call('ZRANGE', KEYS[1], 0, 0)
