@@ -567,10 +567,11 @@ impl Jobs {
         }
         let raw = std::mem::take(&mut submission.raw);
         let job = Job::new(submission);
-        // The worker that claims it reads the document from the upload.
-        drop(job.take_document());
+        let Some(document) = job.take_document() else {
+            return Err(Problem::internal("the upload was not parsed"));
+        };
         let capacity = self.inner.settings.queue_capacity;
-        match store.submit(&job, &raw, capacity).await? {
+        match store.submit(&job, &raw, document, capacity).await? {
             redis::Submitted::Queued => {
                 metrics::counter!("meshsmooth_jobs_submitted_total").increment(1);
                 Ok(Arc::new(job))

@@ -83,6 +83,10 @@ pub struct RedisStore {
     /// Unique per process: consumers are `{replica}-{worker}`.
     replica: String,
     scripts: Scripts,
+    /// The parsed uploads of the jobs this replica accepted and that are
+    /// still queued: when one of its own workers claims such a job, it
+    /// skips reading the upload again. Bounded by the queue capacity.
+    accepted: Mutex<HashMap<Uuid, Document>>,
 }
 
 impl std::fmt::Debug for RedisStore {
@@ -249,6 +253,8 @@ pub(super) enum Tick {
     Held { cancel: bool },
     /// Another worker holds the job now (our lease lapsed).
     Lost,
+    /// The outcome was filed: nothing more to renew.
+    Done,
 }
 
 impl RedisStore {
@@ -270,6 +276,7 @@ impl RedisStore {
             settings,
             replica: Uuid::new_v4().simple().to_string(),
             scripts: Scripts::new(),
+            accepted: Mutex::new(HashMap::new()),
         };
         store
             .ensure_group()
@@ -339,11 +346,13 @@ impl RedisStore {
     }
 
     /// Stores `job` with its uploaded file and queues it, unless the
-    /// fleet-wide queue holds `capacity` jobs. All or nothing.
+    /// fleet-wide queue holds `capacity` jobs. All or nothing. `document`
+    /// is the file parsed, kept for this replica's own workers.
     pub(super) async fn submit(
         &self,
         job: &Job,
         input: &[u8],
+        document: Document,
         capacity: usize,
     ) -> Result<Submitted, Problem> {
         let meta = Meta {
@@ -374,7 +383,10 @@ impl RedisStore {
             .await
             .map_err(|e| unavailable(&e))?;
         Ok(match reply {
-            (1, _) => Submitted::Queued,
+            (1, _) => {
+                lock(&self.accepted).insert(job.id, document);
+                Submitted::Queued
+            }
             (_, queued) => Submitted::Full(queued.max(0) as usize),
         })
     }
@@ -454,6 +466,7 @@ impl RedisStore {
     /// how many results. Errors are left to the requests and the workers
     /// to report.
     pub async fn sweep(&self) -> redis::RedisResult<usize> {
+        self.forget_claimed_elsewhere().await?;
         let gone = (self.settings.lease * 10).max(CONSUMER_RETIREMENT);
         self.scripts
             .sweep
@@ -466,6 +479,27 @@ impl RedisStore {
             .arg(gone.as_millis() as u64)
             .invoke_async(&mut self.conn())
             .await
+    }
+
+    /// Drops the parsed uploads of accepted jobs that are no longer queued
+    /// (another replica claimed them, or they were cancelled).
+    async fn forget_claimed_elsewhere(&self) -> redis::RedisResult<()> {
+        let ids: Vec<Uuid> = lock(&self.accepted).keys().copied().collect();
+        if ids.is_empty() {
+            return Ok(());
+        }
+        let mut pipe = redis::pipe();
+        for id in &ids {
+            pipe.cmd("HGET").arg(job_key(id)).arg("state");
+        }
+        let states: Vec<Option<String>> = pipe.query_async(&mut self.conn()).await?;
+        let mut accepted = lock(&self.accepted);
+        for (id, state) in ids.iter().zip(states) {
+            if state.as_deref() != Some("queued") {
+                accepted.remove(id);
+            }
+        }
+        Ok(())
     }
 
     /// A connection of its own for worker `worker`'s blocking waits.
@@ -553,14 +587,10 @@ impl RedisStore {
                 let entry = text(1);
                 let attempt: u32 = text(3).parse().unwrap_or(1);
                 let reclaimed = text(4) == "1";
-                let cancel = cancel_of(&text(7));
-                let input = reply
-                    .get(6)
-                    .and_then(|v| redis::from_redis_value::<Option<Vec<u8>>>(v.clone()).ok())
-                    .flatten();
+                let cancel = cancel_of(&text(6));
                 let id = Uuid::parse_str(&text(2)).ok();
                 let meta = serde_json::from_str::<Meta>(&text(5)).ok();
-                let (Some(id), Some(meta), Some(input)) = (id, meta, input) else {
+                let (Some(id), Some(meta)) = (id, meta) else {
                     // Unreadable: fail it rather than loop on it.
                     self.fail_unreadable(consumer, &entry, &text(2), attempt)
                         .await?;
@@ -577,7 +607,11 @@ impl RedisStore {
                     consumer: consumer.to_owned(),
                     lost: AtomicBool::new(false),
                 };
-                match read_input(&meta, &input) {
+                let document = match lock(&self.accepted).remove(&id) {
+                    Some(document) => Ok(document),
+                    None => self.read_input(&id, &meta).await,
+                };
+                match document {
                     Ok(document) => Ok(ClaimReply::Run(Arc::new(running_job(
                         id, meta, document, claim, cancel,
                     )))),
@@ -640,6 +674,22 @@ impl RedisStore {
             .map(|_| ())
     }
 
+    /// Reads the uploaded file of a claimed job with the options it was
+    /// accepted with (it was read and checked then: no limits now).
+    async fn read_input(&self, id: &Uuid, meta: &Meta) -> Result<Document, Problem> {
+        let input: Option<Vec<u8>> = self
+            .read(redis::cmd("GET").arg(format!("{}:input", job_key(id))))
+            .await?;
+        let input =
+            input.ok_or_else(|| Problem::internal("the uploaded file of the job is missing"))?;
+        let format = meta.format.parse().unwrap_or(Format::Obj);
+        let unlimited = ReadLimits {
+            max_vertices: usize::MAX,
+            max_faces: usize::MAX,
+        };
+        io::read_with(&input, format, &meta.params.read_options(unlimited)).map_err(Problem::from)
+    }
+
     /// Renews the lease of a running job and publishes its progress.
     pub(super) async fn tick(&self, job: &Job, claim: &Claim) -> redis::RedisResult<Tick> {
         let (stage, fraction) = match job.state() {
@@ -667,6 +717,7 @@ impl RedisStore {
             "ok" => Tick::Held {
                 cancel: !reply.1.is_empty(),
             },
+            "done" => Tick::Done,
             _ => Tick::Lost,
         })
     }
@@ -777,15 +828,35 @@ impl RedisStore {
     }
 }
 
-/// Reads the uploaded file of a claimed job with the options it was
-/// accepted with (it was read and checked then: no limits now).
-fn read_input(meta: &Meta, input: &[u8]) -> Result<Document, Problem> {
-    let format = meta.format.parse().unwrap_or(Format::Obj);
-    let unlimited = ReadLimits {
-        max_vertices: usize::MAX,
-        max_faces: usize::MAX,
-    };
-    io::read_with(input, format, &meta.params.read_options(unlimited)).map_err(Problem::from)
+impl Meta {
+    /// A queued job of this description, not yet started.
+    fn into_job(self, id: Uuid) -> Job {
+        let format = self.format.parse().unwrap_or(Format::Obj);
+        let created_at = wall(self.created_ms);
+        Job {
+            id,
+            input: InputInfo {
+                format,
+                vertices: self.vertices,
+                faces: self.faces,
+                bytes: self.bytes,
+            },
+            output_format: self.output_format.parse().unwrap_or(format),
+            hook: hook_of(self.hook.as_deref()),
+            params: self.params,
+            request_id: self.request_id,
+            created: instant_of(created_at),
+            created_at,
+            document: Mutex::new(None),
+            cancel: AtomicBool::new(false),
+            cancel_reason: Mutex::new(None),
+            state: Mutex::new(JobState::Queued),
+            changes: watch::Sender::new(0),
+            attempts: AtomicU32::new(0),
+            queue_position: None,
+            claim: None,
+        }
+    }
 }
 
 /// The job a worker claimed, ready to run.
@@ -796,31 +867,10 @@ fn running_job(
     claim: Claim,
     cancel: Option<CancelReason>,
 ) -> Job {
-    let format = document.format;
-    let created_at = wall(meta.created_ms);
-    let job = Job {
-        id,
-        input: InputInfo {
-            format,
-            vertices: meta.vertices,
-            faces: meta.faces,
-            bytes: meta.bytes,
-        },
-        output_format: meta.output_format.parse().unwrap_or(format),
-        hook: hook_of(meta.hook.as_deref()),
-        params: meta.params,
-        request_id: meta.request_id,
-        created: instant_of(created_at),
-        created_at,
-        document: Mutex::new(Some(document)),
-        cancel: AtomicBool::new(false),
-        cancel_reason: Mutex::new(None),
-        state: Mutex::new(JobState::Queued),
-        changes: watch::Sender::new(0),
-        attempts: AtomicU32::new(claim.attempt),
-        queue_position: None,
-        claim: Some(claim),
-    };
+    let mut job = meta.into_job(id);
+    job.document = Mutex::new(Some(document));
+    job.attempts = AtomicU32::new(claim.attempt);
+    job.claim = Some(claim);
     if let Some(reason) = cancel {
         job.request_cancel(reason);
     }
@@ -831,9 +881,6 @@ fn running_job(
 fn snapshot(id: Uuid, f: &HashMap<String, String>) -> Option<Job> {
     let meta: Meta = serde_json::from_str(f.get("meta")?).ok()?;
     let num = |name: &str| f.get(name).and_then(|v| v.parse::<u64>().ok());
-    let format = meta.format.parse().unwrap_or(Format::Obj);
-    let output_format = meta.output_format.parse().unwrap_or(format);
-    let created_at = wall(meta.created_ms);
     let started = num("started_ms").map(|ms| {
         let at = wall(ms);
         (instant_of(at), at)
@@ -890,29 +937,12 @@ fn snapshot(id: Uuid, f: &HashMap<String, String>) -> Option<Job> {
     };
     let cancel = f.get("cancel").and_then(|r| cancel_of(r));
     let attempts = num("attempts").unwrap_or(0) as u32;
-    Some(Job {
-        id,
-        input: InputInfo {
-            format,
-            vertices: meta.vertices,
-            faces: meta.faces,
-            bytes: meta.bytes,
-        },
-        output_format,
-        hook: hook_of(meta.hook.as_deref()),
-        params: meta.params,
-        request_id: meta.request_id,
-        created: instant_of(created_at),
-        created_at,
-        document: Mutex::new(None),
-        cancel: AtomicBool::new(cancel.is_some()),
-        cancel_reason: Mutex::new(cancel),
-        state: Mutex::new(state),
-        changes: watch::Sender::new(0),
-        attempts: AtomicU32::new(attempts),
-        queue_position: None,
-        claim: None,
-    })
+    let mut job = meta.into_job(id);
+    job.cancel = AtomicBool::new(cancel.is_some());
+    job.cancel_reason = Mutex::new(cancel);
+    job.state = Mutex::new(state);
+    job.attempts = AtomicU32::new(attempts);
+    Some(job)
 }
 
 impl Scripts {
@@ -943,7 +973,7 @@ return {1, redis.call('INCR', KEYS[2])}
 /// KEYS: queue, queued. ARGV: group, consumer, lease_ms, max_attempts,
 /// now, prefix. A lapsed lease first (XAUTOCLAIM), else the next new entry
 /// (XREADGROUP). Returns {'idle', last_id}, {'skip'}, {'exhausted', entry,
-/// id} or {'run', entry, id, attempt, reclaimed, meta, input, cancel}.
+/// id} or {'run', entry, id, attempt, reclaimed, meta, cancel}.
 const CLAIM: &str = r"
 local q, group, consumer = KEYS[1], ARGV[1], ARGV[2]
 local reclaimed = '1'
@@ -985,19 +1015,20 @@ end
 redis.call('HSET', key, 'state', 'running', 'owner', consumer, 'entry', entry, 'started_ms', ARGV[5])
 redis.call('HDEL', key, 'stage', 'fraction')
 redis.call('HINCRBY', key, 'version', 1)
-local input = redis.call('GET', key .. ':input')
 local meta = redis.call('HGET', key, 'meta')
 local cancel = redis.call('HGET', key, 'cancel') or ''
-return {'run', entry, id, tostring(attempt), reclaimed, meta, input, cancel}
+return {'run', entry, id, tostring(attempt), reclaimed, meta, cancel}
 ";
 
 /// KEYS: queue, job. ARGV: group, consumer, entry, attempt, stage,
-/// fraction. Renews the lease, publishes progress. Returns {'ok', cancel}
-/// or {'lost', ''}.
+/// fraction. Renews the lease, publishes progress. Returns {'ok', cancel},
+/// {'done', ''} once the job was filed (or handed back), or {'lost', ''}
+/// when another worker holds it.
 const TICK_SCRIPT: &str = r"
-if redis.call('HGET', KEYS[2], 'owner') ~= ARGV[2] or
-   redis.call('HGET', KEYS[2], 'attempts') ~= ARGV[4] then
-  return {'lost', ''}
+local owner = redis.call('HGET', KEYS[2], 'owner')
+if owner ~= ARGV[2] or redis.call('HGET', KEYS[2], 'attempts') ~= ARGV[4] then
+  if owner then return {'lost', ''} end
+  return {'done', ''}
 end
 redis.call('XCLAIM', KEYS[1], ARGV[1], ARGV[2], 0, ARGV[3], 'JUSTID')
 if ARGV[5] ~= '' then

@@ -141,6 +141,7 @@ pub(super) fn keep_lease(inner: &Inner, store: &Arc<RedisStore>, job: &Arc<Job>)
                         job.request_cancel(CancelReason::Client);
                     }
                 }
+                Ok(Tick::Done) => return,
                 Ok(Tick::Lost) => {
                     warn!(job_id = %job.id, "lease lost: another worker runs the job now; stopping");
                     claim.lost.store(true, Ordering::Relaxed);
