@@ -326,7 +326,7 @@ fn cli_seconds(bin: &str, input: &std::path::Path, query: &str) -> f64 {
 /// Alternating CLI/server rounds in the overhead table.
 const OVERHEAD_ROUNDS: usize = 3;
 /// Jobs per store in the job API table.
-const JOB_API_ROUNDS: usize = 5;
+const JOB_API_ROUNDS: usize = 10;
 
 fn main() {
     let bin = env!("CARGO_BIN_EXE_meshsmooth");
@@ -434,8 +434,10 @@ fn main() {
          hits them alike); median and spread."
     );
     println!();
-    println!("| store | mesh | median s | min s | max s | vs memory % |");
-    println!("|---|---|---:|---:|---:|---:|");
+    println!(
+        "| store | mesh | median s | min s | max s | vs memory % | median of paired differences s |"
+    );
+    println!("|---|---|---:|---:|---:|---:|---:|");
     let jobs_path = path.replacen("/v1/smooth", "/v1/jobs", 1);
     for (name, _, body) in &meshes {
         let mut times: Vec<Vec<f64>> = vec![Vec::new(); servers.len()];
@@ -446,14 +448,18 @@ fn main() {
             }
         }
         let memory = median(times[0].clone());
-        for ((store, _, _), mut t) in servers.iter().zip(times) {
-            t.sort_by(f64::total_cmp);
+        for ((store, _, _), t) in servers.iter().zip(&times) {
+            // Each job against the memory job of the same round.
+            let paired: Vec<f64> = t.iter().zip(&times[0]).map(|(x, m)| x - m).collect();
+            let mut sorted = t.clone();
+            sorted.sort_by(f64::total_cmp);
             let m = median(t.clone());
             println!(
-                "| {store} | {name} | {m:.3} | {:.3} | {:.3} | {:+.1} |",
-                t.first().copied().unwrap_or(f64::NAN),
-                t.last().copied().unwrap_or(f64::NAN),
-                100.0 * (m - memory) / memory
+                "| {store} | {name} | {m:.3} | {:.3} | {:.3} | {:+.1} | {:+.3} |",
+                sorted.first().copied().unwrap_or(f64::NAN),
+                sorted.last().copied().unwrap_or(f64::NAN),
+                100.0 * (m - memory) / memory,
+                median(paired)
             );
         }
     }

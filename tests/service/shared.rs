@@ -332,3 +332,23 @@ async fn the_queue_capacity_holds_across_replicas() {
         assert_eq!(job["state"], "succeeded", "{job}");
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_replica_started_while_redis_is_down_is_unready_until_it_comes_up() {
+    let mut redis = RedisServer::start();
+    redis.stop();
+    let a = replica(&redis, "1", &[]);
+    a.get("/readyz").await.problem(503, "store_unavailable");
+    submit(&a, "sleep=10")
+        .await
+        .problem(503, "store_unavailable");
+    redis.resume();
+    let start = Instant::now();
+    while a.get("/readyz").await.status != StatusCode::OK {
+        assert!(start.elapsed() < LONG, "not ready after Redis came up");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let id = job_id(&submit(&a, "sleep=10").await);
+    let job = a.wait_job(&id, LONG).await;
+    assert_eq!(job["state"], "succeeded", "{job}");
+}

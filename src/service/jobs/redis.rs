@@ -78,7 +78,11 @@ pub struct RedisSettings {
 /// The connection to the shared store and the scripts run on it.
 pub struct RedisStore {
     client: redis::Client,
-    conn: ConnectionManager,
+    config: redis::aio::ConnectionManagerConfig,
+    /// Made at the first call that finds Redis up (a replica may start
+    /// while Redis is away: it then answers `store_unavailable` until it
+    /// is back), then reconnecting by itself.
+    conn: tokio::sync::OnceCell<ConnectionManager>,
     settings: RedisSettings,
     /// Unique per process: consumers are `{replica}-{worker}`.
     replica: String,
@@ -258,7 +262,9 @@ pub(super) enum Tick {
 }
 
 impl RedisStore {
-    /// Connects and prepares the queue (the stream and its group).
+    /// The store at `settings.url`. Connects at once when Redis is up;
+    /// when it is not, the replica starts anyway, unready, and connects
+    /// when Redis comes up.
     pub async fn connect(settings: RedisSettings) -> anyhow::Result<RedisStore> {
         let client = redis::Client::open(settings.url.as_str())
             .map_err(|e| anyhow::anyhow!("invalid --store `{}`: {e}", settings.url))?;
@@ -267,37 +273,49 @@ impl RedisStore {
             .set_connection_timeout(Some(CONNECT_TIMEOUT))
             .set_number_of_retries(1)
             .set_max_delay(Duration::from_millis(500));
-        let conn = ConnectionManager::new_with_config(client.clone(), config)
-            .await
-            .map_err(|e| anyhow::anyhow!("cannot reach the job store {}: {e}", settings.url))?;
         let store = RedisStore {
             client,
-            conn,
+            config,
+            conn: tokio::sync::OnceCell::new(),
             settings,
             replica: Uuid::new_v4().simple().to_string(),
             scripts: Scripts::new(),
             accepted: Mutex::new(HashMap::new()),
         };
-        store
-            .ensure_group()
-            .await
-            .map_err(|e| anyhow::anyhow!("cannot prepare the job queue in Redis: {e}"))?;
+        if let Err(e) = store.conn().await {
+            tracing::warn!(url = %store.settings.url, error = %e, "the job store (Redis) cannot be reached yet; not ready until it can");
+        }
         Ok(store)
     }
 
-    fn conn(&self) -> ConnectionManager {
-        self.conn.clone()
+    /// The shared connection, made (and the queue prepared) on first use.
+    async fn conn(&self) -> redis::RedisResult<ConnectionManager> {
+        self.conn
+            .get_or_try_init(|| async {
+                let mut conn =
+                    ConnectionManager::new_with_config(self.client.clone(), self.config.clone())
+                        .await?;
+                ensure_group(&mut conn).await?;
+                Ok(conn)
+            })
+            .await
+            .cloned()
+    }
+
+    /// [`Self::conn`] for the request paths.
+    async fn request_conn(&self) -> Result<ConnectionManager, Problem> {
+        self.conn().await.map_err(|e| unavailable(&e))
     }
 
     /// Runs a read-only command; once more when the connection had broken
     /// (Redis restarted: the first command finds the old connection gone,
     /// and the manager reconnects).
     async fn read<T: redis::FromRedisValue>(&self, cmd: &redis::Cmd) -> Result<T, Problem> {
-        match cmd.query_async(&mut self.conn()).await {
+        match cmd.query_async(&mut self.request_conn().await?).await {
             Ok(v) => Ok(v),
             Err(e) if e.is_connection_dropped() || e.is_io_error() => {
                 tokio::time::sleep(Duration::from_millis(50)).await;
-                cmd.query_async(&mut self.conn())
+                cmd.query_async(&mut self.request_conn().await?)
                     .await
                     .map_err(|e| unavailable(&e))
             }
@@ -307,23 +325,6 @@ impl RedisStore {
 
     fn consumer(&self, worker: usize) -> String {
         format!("{}-{worker}", self.replica)
-    }
-
-    /// Creates the stream and the consumer group unless they exist (also
-    /// after a Redis that lost its data came back).
-    async fn ensure_group(&self) -> redis::RedisResult<()> {
-        let created: redis::RedisResult<Value> = redis::cmd("XGROUP")
-            .arg("CREATE")
-            .arg(key("queue"))
-            .arg(GROUP)
-            .arg("0")
-            .arg("MKSTREAM")
-            .query_async(&mut self.conn())
-            .await;
-        match created {
-            Err(e) if e.code() == Some("BUSYGROUP") => Ok(()),
-            other => other.map(|_| ()),
-        }
     }
 
     /// Jobs waiting for a worker, fleet-wide.
@@ -339,7 +340,7 @@ impl RedisStore {
             .arg(key("results"))
             .cmd("GET")
             .arg(key("result_bytes"))
-            .query_async(&mut self.conn())
+            .query_async(&mut self.request_conn().await?)
             .await
             .map_err(|e| unavailable(&e))?;
         Ok((count, bytes.unwrap_or(0).max(0) as u64))
@@ -379,7 +380,7 @@ impl RedisStore {
             .arg(input)
             .arg(job.id.to_string())
             .arg(millis(job.created_at))
-            .invoke_async(&mut self.conn())
+            .invoke_async(&mut self.request_conn().await?)
             .await
             .map_err(|e| unavailable(&e))?;
         Ok(match reply {
@@ -450,7 +451,7 @@ impl RedisStore {
             .arg(millis(SystemTime::now()))
             .arg(id.to_string())
             .arg(if forget { "1" } else { "0" })
-            .invoke_async(&mut self.conn())
+            .invoke_async(&mut self.request_conn().await?)
             .await
             .map_err(|e| unavailable(&e))?;
         Ok(match reply.as_str() {
@@ -477,7 +478,7 @@ impl RedisStore {
             .arg(PREFIX)
             .arg(GROUP)
             .arg(gone.as_millis() as u64)
-            .invoke_async(&mut self.conn())
+            .invoke_async(&mut self.conn().await?)
             .await
     }
 
@@ -492,7 +493,7 @@ impl RedisStore {
         for id in &ids {
             pipe.cmd("HGET").arg(job_key(id)).arg("state");
         }
-        let states: Vec<Option<String>> = pipe.query_async(&mut self.conn()).await?;
+        let states: Vec<Option<String>> = pipe.query_async(&mut self.conn().await?).await?;
         let mut accepted = lock(&self.accepted);
         for (id, state) in ids.iter().zip(states) {
             if state.as_deref() != Some("queued") {
@@ -548,8 +549,10 @@ impl RedisStore {
                     }
                 }
                 Err(e) => {
-                    if e.code() == Some("NOGROUP") {
-                        let _ = self.ensure_group().await;
+                    if e.code() == Some("NOGROUP")
+                        && let Ok(mut conn) = self.conn().await
+                    {
+                        let _ = ensure_group(&mut conn).await;
                     }
                     tracing::warn!(error = %e, "cannot claim a job from Redis; retrying");
                     metrics::counter!("meshsmooth_store_errors_total").increment(1);
@@ -573,7 +576,7 @@ impl RedisStore {
             .arg(self.settings.max_attempts)
             .arg(millis(SystemTime::now()))
             .arg(PREFIX)
-            .invoke_async(&mut self.conn())
+            .invoke_async(&mut self.conn().await?)
             .await?;
         let text = |i: usize| -> String {
             match reply.get(i) {
@@ -607,7 +610,9 @@ impl RedisStore {
                     consumer: consumer.to_owned(),
                     lost: AtomicBool::new(false),
                 };
-                let document = match lock(&self.accepted).remove(&id) {
+                // The guard must not live across the read below.
+                let accepted_here = lock(&self.accepted).remove(&id);
+                let document = match accepted_here {
                     Some(document) => Ok(document),
                     None => self.read_input(&id, &meta).await,
                 };
@@ -657,7 +662,7 @@ impl RedisStore {
                 .cmd("XDEL")
                 .arg(key("queue"))
                 .arg(entry)
-                .query_async(&mut self.conn())
+                .query_async(&mut self.conn().await?)
                 .await?;
             return Ok(());
         };
@@ -711,7 +716,7 @@ impl RedisStore {
             .arg(claim.attempt)
             .arg(stage)
             .arg(fraction)
-            .invoke_async(&mut self.conn())
+            .invoke_async(&mut self.conn().await?)
             .await?;
         Ok(match reply.0.as_str() {
             "ok" => Tick::Held {
@@ -802,7 +807,7 @@ impl RedisStore {
             .arg(budget)
             .arg(PREFIX)
             .arg(id.to_string())
-            .invoke_async(&mut self.conn())
+            .invoke_async(&mut self.conn().await?)
             .await?;
         Ok((reply >= 0).then_some(reply as usize))
     }
@@ -822,7 +827,7 @@ impl RedisStore {
             .arg(&claim.entry)
             .arg(claim.attempt)
             .arg(job.id.to_string())
-            .invoke_async(&mut self.conn())
+            .invoke_async(&mut self.conn().await?)
             .await?;
         Ok(reply == 1)
     }
@@ -856,6 +861,23 @@ impl Meta {
             queue_position: None,
             claim: None,
         }
+    }
+}
+
+/// Creates the stream and the consumer group unless they exist (also
+/// after a Redis that lost its data came back).
+async fn ensure_group(conn: &mut ConnectionManager) -> redis::RedisResult<()> {
+    let created: redis::RedisResult<Value> = redis::cmd("XGROUP")
+        .arg("CREATE")
+        .arg(key("queue"))
+        .arg(GROUP)
+        .arg("0")
+        .arg("MKSTREAM")
+        .query_async(conn)
+        .await;
+    match created {
+        Err(e) if e.code() == Some("BUSYGROUP") => Ok(()),
+        other => other.map(|_| ()),
     }
 }
 
