@@ -59,8 +59,9 @@ const IDLE_WAIT: Duration = Duration::from_millis(500);
 /// least every [`IDLE_WAIT`].
 const CONSUMER_RETIREMENT: Duration = Duration::from_secs(60);
 /// How often readers poll a job's version (event streams, one-call
-/// `/v1/smooth`).
-pub(super) const POLL: Duration = Duration::from_millis(50);
+/// `/v1/smooth`): the latency a reader adds to a job's end, against one
+/// small read per waiting reader per poll.
+pub(super) const POLL: Duration = Duration::from_millis(20);
 
 /// Settings of the Redis store.
 #[derive(Debug, Clone)]
