@@ -18,8 +18,9 @@
 //!   `result_bytes`: the bookkeeping of the result memory budget, oldest
 //!   evicted first.
 //!
-//! Every change of more than one key is one Lua script, so a job is never
-//! seen half-written, whatever fails in between.
+//! Every change of more than one key is one Lua script (big payloads go
+//! in as plain SETs in the same MULTI transaction as the script), so a job
+//! is never seen half-written, whatever fails in between.
 
 use super::{
     CancelReason, Claim, HeldResult, InputInfo, Job, JobResult, JobState, Outcome, TestHook, lock,
@@ -104,10 +105,8 @@ impl std::fmt::Debug for RedisStore {
 }
 
 struct Scripts {
-    submit: Script,
     claim: Script,
     tick: Script,
-    finish: Script,
     hand_back: Script,
     delete: Script,
     sweep: Script,
@@ -370,18 +369,26 @@ impl RedisStore {
         };
         let meta = serde_json::to_string(&meta)
             .map_err(|_| Problem::internal("the job could not be encoded"))?;
-        let reply: (i64, i64) = self
-            .scripts
-            .submit
-            .key(key("queue"))
-            .key(key("queued"))
-            .key(job_key(&job.id))
+        // The upload goes in as a plain SET in the same transaction as the
+        // script (a Lua argument would cost Redis another copy of it); the
+        // script deletes it when it refuses the job.
+        let k = job_key(&job.id);
+        let (reply,): ((i64, i64),) = redis::pipe()
+            .atomic()
+            .cmd("SET")
+            .arg(format!("{k}:input"))
+            .arg(input)
+            .ignore()
+            .cmd("EVAL")
+            .arg(SUBMIT)
+            .arg(3)
+            .arg(key("queue"))
+            .arg(key("queued"))
+            .arg(&k)
             .arg(capacity)
             .arg(meta)
-            .arg(input)
             .arg(job.id.to_string())
-            .arg(millis(job.created_at))
-            .invoke_async(&mut self.request_conn().await?)
+            .query_async(&mut self.request_conn().await?)
             .await
             .map_err(|e| unavailable(&e))?;
         Ok(match reply {
@@ -783,33 +790,48 @@ impl RedisStore {
                 &empty,
             ),
         };
-        let reply: i64 = self
-            .scripts
-            .finish
-            .key(key("queue"))
-            .key(job_key(id))
-            .key(key("results"))
-            .key(key("result_sizes"))
-            .key(key("result_bytes"))
-            .key(key("result_seq"))
+        let k = job_key(id);
+        let ttl_ms = ttl.as_millis().max(1) as u64;
+        let mut pipe = redis::pipe();
+        pipe.atomic();
+        // The result goes in as plain SETs in the same transaction as the
+        // script (as Lua arguments they would cost Redis another copy).
+        if state == "succeeded" {
+            for (part, bytes) in [("mesh", mesh), ("report", report)] {
+                pipe.cmd("SET")
+                    .arg(format!("{k}:{part}"))
+                    .arg(bytes.as_ref())
+                    .arg("PX")
+                    .arg(ttl_ms)
+                    .ignore();
+            }
+        }
+        pipe.cmd("EVAL")
+            .arg(FINISH)
+            .arg(6)
+            .arg(key("queue"))
+            .arg(&k)
+            .arg(key("results"))
+            .arg(key("result_sizes"))
+            .arg(key("result_bytes"))
+            .arg(key("result_seq"))
             .arg(GROUP)
             .arg(&claim.consumer)
             .arg(&claim.entry)
             .arg(claim.attempt)
             .arg(millis(SystemTime::now()))
-            .arg(ttl.as_millis().max(1) as u64)
+            .arg(ttl_ms)
             .arg(state)
             .arg(code)
             .arg(detail)
             .arg(field)
             .arg(reason)
-            .arg(mesh.as_ref())
-            .arg(report.as_ref())
+            .arg(mesh.len())
+            .arg(report.len())
             .arg(budget)
             .arg(PREFIX)
-            .arg(id.to_string())
-            .invoke_async(&mut self.conn().await?)
-            .await?;
+            .arg(id.to_string());
+        let (reply,): (i64,) = pipe.query_async(&mut self.conn().await?).await?;
         Ok((reply >= 0).then_some(reply as usize))
     }
 
@@ -971,10 +993,8 @@ fn snapshot(id: Uuid, f: &HashMap<String, String>) -> Option<Job> {
 impl Scripts {
     fn new() -> Scripts {
         Scripts {
-            submit: Script::new(SUBMIT),
             claim: Script::new(CLAIM),
             tick: Script::new(TICK_SCRIPT),
-            finish: Script::new(FINISH),
             hand_back: Script::new(HAND_BACK),
             delete: Script::new(DELETE),
             sweep: Script::new(SWEEP),
@@ -982,14 +1002,17 @@ impl Scripts {
     }
 }
 
-/// KEYS: queue, queued, job. ARGV: capacity, meta, input, id, now.
-/// Returns {1, queued} when stored, {0, queued} when the queue is full.
+/// KEYS: queue, queued, job. ARGV: capacity, meta, id. Runs in one
+/// transaction after the SET of the job's input. Returns {1, queued} when
+/// stored, {0, queued} (and the input deleted) when the queue is full.
 const SUBMIT: &str = r"
 local queued = tonumber(redis.call('GET', KEYS[2]) or '0')
-if queued >= tonumber(ARGV[1]) then return {0, queued} end
+if queued >= tonumber(ARGV[1]) then
+  redis.call('DEL', KEYS[3] .. ':input')
+  return {0, queued}
+end
 redis.call('HSET', KEYS[3], 'meta', ARGV[2], 'state', 'queued', 'attempts', 0, 'version', 1)
-redis.call('SET', KEYS[3] .. ':input', ARGV[3])
-redis.call('XADD', KEYS[1], '*', 'job', ARGV[4])
+redis.call('XADD', KEYS[1], '*', 'job', ARGV[3])
 return {1, redis.call('INCR', KEYS[2])}
 ";
 
@@ -1066,12 +1089,19 @@ return {'ok', redis.call('HGET', KEYS[2], 'cancel') or ''}
 
 /// KEYS: queue, job, results, result_sizes, result_bytes, result_seq.
 /// ARGV: group, consumer, entry, attempt, now, ttl_ms, state, error_code,
-/// error_detail, error_field, cancel_reason, mesh, report, budget, prefix,
-/// id. Returns the number of results evicted, or -1 if the lease was lost.
+/// error_detail, error_field, cancel_reason, mesh bytes, report bytes,
+/// budget, prefix, id. Runs in one transaction after the SETs of a
+/// success's mesh and report. Returns the number of results evicted, or -1
+/// if the lease was lost (the result just written is then dropped, unless
+/// the job's new owner already succeeded: the same input gives the same
+/// bytes).
 const FINISH: &str = r"
 local key = KEYS[2]
 if redis.call('HGET', key, 'owner') ~= ARGV[2] or
    redis.call('HGET', key, 'attempts') ~= ARGV[4] then
+  if redis.call('HGET', key, 'state') ~= 'succeeded' then
+    redis.call('DEL', key .. ':mesh', key .. ':report')
+  end
   return -1
 end
 redis.call('XACK', KEYS[1], ARGV[1], ARGV[3])
@@ -1085,11 +1115,8 @@ if ARGV[7] == 'failed' then
 elseif ARGV[7] == 'cancelled' then
   redis.call('HSET', key, 'cancel_reason', ARGV[11])
 elseif ARGV[7] == 'succeeded' then
-  local ttl = tonumber(ARGV[6])
-  redis.call('SET', key .. ':mesh', ARGV[12], 'PX', ttl)
-  redis.call('SET', key .. ':report', ARGV[13], 'PX', ttl)
-  redis.call('HSET', key, 'mesh_bytes', #ARGV[12], 'report_bytes', #ARGV[13], 'result', 1)
-  local bytes = #ARGV[12] + #ARGV[13]
+  redis.call('HSET', key, 'mesh_bytes', ARGV[12], 'report_bytes', ARGV[13], 'result', 1)
+  local bytes = tonumber(ARGV[12]) + tonumber(ARGV[13])
   redis.call('ZADD', KEYS[3], redis.call('INCR', KEYS[6]), ARGV[16])
   redis.call('HSET', KEYS[4], ARGV[16], bytes)
   local total = redis.call('INCRBY', KEYS[5], bytes)
