@@ -352,3 +352,23 @@ async fn a_replica_started_while_redis_is_down_is_unready_until_it_comes_up() {
     let job = a.wait_job(&id, LONG).await;
     assert_eq!(job["state"], "succeeded", "{job}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stalled_redis_is_a_503_within_seconds_not_a_hang() {
+    let redis = RedisServer::start();
+    let a = replica(&redis, "1", &[]);
+    let id = job_id(&submit(&a, "sleep=10").await);
+    a.wait_job(&id, LONG).await;
+    redis.freeze(true);
+    let start = Instant::now();
+    let r = a.get(&format!("/v1/jobs/{id}")).await;
+    let waited = start.elapsed();
+    redis.freeze(false);
+    r.problem(503, "store_unavailable");
+    assert!(
+        waited < Duration::from_secs(10),
+        "answered after {waited:?}"
+    );
+    let job = wait_for(&a, &id, LONG, |j| j["state"] == "succeeded").await;
+    assert_eq!(job["attempts"], 1, "{job}");
+}

@@ -581,6 +581,18 @@ impl RedisServer {
         let _ = child.wait();
     }
 
+    /// Freezes (SIGSTOP, `true`) or thaws (SIGCONT, `false`) the server:
+    /// it keeps its connections but answers nothing while frozen.
+    pub fn freeze(&self, frozen: bool) {
+        let child = self.child.as_ref().expect("running");
+        let signal = if frozen { "-STOP" } else { "-CONT" };
+        let status = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .expect("run kill");
+        assert!(status.success());
+    }
+
     /// True when `PING` gets `+PONG`.
     fn answers(&self) -> bool {
         use std::io::Write;
