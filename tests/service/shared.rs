@@ -118,6 +118,10 @@ async fn a_queued_job_is_cancelled_and_a_running_one_stopped_through_another_rep
         wait_for(&a, id, LONG, |j| j["state"] == "running").await;
     }
     let queued = job_id(&submit(&b, "sleep=10").await);
+    let next = job_id(&submit(&a, "sleep=10").await);
+    let view = a.get(&format!("/v1/jobs/{next}")).await.json();
+    assert_eq!(view["state"], "queued", "{view}");
+    assert_eq!(view["queue_position"], 1, "one job ahead: {view}");
     let r = a.delete(&format!("/v1/jobs/{queued}")).await;
     assert_eq!(r.status, StatusCode::OK, "{}", r.text());
     assert_eq!(r.json()["state"], "cancelled");
@@ -128,6 +132,8 @@ async fn a_queued_job_is_cancelled_and_a_running_one_stopped_through_another_rep
         assert_eq!(job["state"], "cancelled", "{job}");
         assert_eq!(job["cancel_reason"], "client", "{job}");
     }
+    let job = b.wait_job(&next, LONG).await;
+    assert_eq!(job["state"], "succeeded", "{job}");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

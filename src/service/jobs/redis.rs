@@ -105,6 +105,7 @@ impl std::fmt::Debug for RedisStore {
 }
 
 struct Scripts {
+    position: Script,
     claim: Script,
     tick: Script,
     hand_back: Script,
@@ -405,7 +406,21 @@ impl RedisStore {
     pub(super) async fn get(&self, id: &Uuid) -> Result<Option<Arc<Job>>, Problem> {
         let fields: HashMap<String, String> =
             self.read(redis::cmd("HGETALL").arg(job_key(id))).await?;
-        Ok(snapshot(*id, &fields).map(Arc::new))
+        let Some(mut job) = snapshot(*id, &fields) else {
+            return Ok(None);
+        };
+        if let (JobState::Queued, Some(entry)) = (job.state(), fields.get("entry")) {
+            let ahead: redis::RedisResult<usize> = self
+                .scripts
+                .position
+                .key(key("queue"))
+                .arg(GROUP)
+                .arg(entry)
+                .invoke_async(&mut self.request_conn().await?)
+                .await;
+            job.queue_position = ahead.ok();
+        }
+        Ok(Some(Arc::new(job)))
     }
 
     /// A number that changes with every change of the job's state or
@@ -993,6 +1008,7 @@ fn snapshot(id: Uuid, f: &HashMap<String, String>) -> Option<Job> {
 impl Scripts {
     fn new() -> Scripts {
         Scripts {
+            position: Script::new(POSITION),
             claim: Script::new(CLAIM),
             tick: Script::new(TICK_SCRIPT),
             hand_back: Script::new(HAND_BACK),
@@ -1011,9 +1027,23 @@ if queued >= tonumber(ARGV[1]) then
   redis.call('DEL', KEYS[3] .. ':input')
   return {0, queued}
 end
-redis.call('HSET', KEYS[3], 'meta', ARGV[2], 'state', 'queued', 'attempts', 0, 'version', 1)
-redis.call('XADD', KEYS[1], '*', 'job', ARGV[3])
+local entry = redis.call('XADD', KEYS[1], '*', 'job', ARGV[3])
+redis.call('HSET', KEYS[3], 'meta', ARGV[2], 'state', 'queued', 'attempts', 0, 'version', 1,
+  'entry', entry)
 return {1, redis.call('INCR', KEYS[2])}
+";
+
+/// KEYS: queue. ARGV: group, entry. The number of entries not yet claimed
+/// ahead of `entry` in the queue (entries of jobs cancelled while queued
+/// count until a worker skips them).
+const POSITION: &str = r"
+local last = '0-0'
+for _, g in ipairs(redis.call('XINFO', 'GROUPS', KEYS[1])) do
+  local fields = {}
+  for i = 1, #g, 2 do fields[g[i]] = g[i + 1] end
+  if fields['name'] == ARGV[1] then last = fields['last-delivered-id'] end
+end
+return #redis.call('XRANGE', KEYS[1], '(' .. last, '(' .. ARGV[2])
 ";
 
 /// KEYS: queue, queued. ARGV: group, consumer, lease_ms, max_attempts,
@@ -1154,7 +1184,7 @@ redis.call('HSET', key, 'state', 'queued')
 redis.call('HDEL', key, 'owner', 'entry', 'started_ms', 'stage', 'fraction')
 redis.call('HINCRBY', key, 'attempts', -1)
 redis.call('HINCRBY', key, 'version', 1)
-redis.call('XADD', KEYS[1], '*', 'job', ARGV[5])
+redis.call('HSET', key, 'entry', redis.call('XADD', KEYS[1], '*', 'job', ARGV[5]))
 redis.call('INCR', KEYS[2])
 return 1
 ";
