@@ -6,7 +6,13 @@
 //! `meshsmooth smooth` (the CLI) on the same meshes and reports the
 //! server's overhead per request (end-to-end time minus the CLI's time).
 //!
-//! Run: `cargo bench --bench load`. Settings (environment):
+//! With `-- --store redis://HOST:PORT`, every table is also measured with
+//! the server on that Redis store, beside the default memory store, and a
+//! table compares one client going through the job API (`POST /v1/jobs`,
+//! polls, mesh and report) on each store.
+//!
+//! Run: `cargo bench --bench load [-- --store redis://…]`. Settings
+//! (environment):
 //! - `MESHSMOOTH_BENCH_SIZES`: vertex targets, comma separated
 //!   (default `10000,100000,228000`);
 //! - `MESHSMOOTH_BENCH_CLIENTS`: concurrency levels (default `1,4,16`);
@@ -141,6 +147,95 @@ async fn smooth_once(addr: SocketAddr, path: &str, body: Bytes) -> Outcome {
     }
 }
 
+/// `requests` one-call requests from `clients` concurrent clients.
+async fn load(
+    addr: SocketAddr,
+    path: &str,
+    body: &Bytes,
+    clients: usize,
+    requests: usize,
+) -> Vec<Outcome> {
+    let next = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let tasks: Vec<_> = (0..clients)
+        .map(|_| {
+            let next = next.clone();
+            let body = body.clone();
+            let path = path.to_owned();
+            tokio::spawn(async move {
+                let mut mine = Vec::new();
+                while next.fetch_add(1, std::sync::atomic::Ordering::Relaxed) < requests {
+                    mine.push(smooth_once(addr, &path, body.clone()).await);
+                }
+                mine
+            })
+        })
+        .collect();
+    let mut all = Vec::new();
+    for t in tasks {
+        all.extend(t.await.expect("client task"));
+    }
+    all
+}
+
+/// One job through the job API: submit, poll until finished, fetch the
+/// mesh and the report. Returns the whole time.
+async fn job_api_once(addr: SocketAddr, path: &str, body: Bytes) -> Duration {
+    let start = Instant::now();
+    let (status, _, job) = send(addr, "POST", path, Some(body)).await;
+    assert_eq!(status, 202, "submit failed");
+    let job: serde_json::Value = serde_json::from_slice(&job).unwrap_or_default();
+    let id = job["id"].as_str().unwrap_or_default().to_owned();
+    loop {
+        let (status, _, job) = send(addr, "GET", &format!("/v1/jobs/{id}"), None).await;
+        assert_eq!(status, 200, "poll failed");
+        let job: serde_json::Value = serde_json::from_slice(&job).unwrap_or_default();
+        match job["state"].as_str() {
+            Some("succeeded") => break,
+            Some("queued" | "running") => tokio::time::sleep(Duration::from_millis(20)).await,
+            other => panic!("job ended {other:?}"),
+        }
+    }
+    for part in ["mesh", "report"] {
+        let (status, _, _) = send(addr, "GET", &format!("/v1/jobs/{id}/{part}"), None).await;
+        assert_eq!(status, 200, "fetching the {part} failed");
+    }
+    let _ = send(addr, "DELETE", &format!("/v1/jobs/{id}"), None).await;
+    start.elapsed()
+}
+
+/// Starts `meshsmooth serve` on `store`; the process and its address.
+fn start_server(bin: &str, store: &str) -> (std::process::Child, SocketAddr) {
+    let mut server = Command::new(bin)
+        .args(["serve", "--listen", "127.0.0.1:0", "--queue-capacity", "64"])
+        .args(["--log", "warn", "--store", store])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start the server");
+    let mut line = String::new();
+    BufReader::new(server.stdout.take().expect("stdout"))
+        .read_line(&mut line)
+        .expect("listening line");
+    let addr: SocketAddr = line
+        .trim()
+        .strip_prefix("meshsmooth listening on http://")
+        .and_then(|a| a.parse().ok())
+        .expect("bound address");
+    (server, addr)
+}
+
+/// The `--store` argument after `--`, if any.
+fn store_argument() -> Option<String> {
+    let args: Vec<String> = std::env::args().collect();
+    args.iter()
+        .position(|a| a == "--store")
+        .and_then(|i| args.get(i + 1).cloned())
+        .or_else(|| {
+            args.iter()
+                .find_map(|a| a.strip_prefix("--store=").map(str::to_owned))
+        })
+}
+
 async fn send(
     addr: SocketAddr,
     method: &str,
@@ -230,6 +325,8 @@ fn cli_seconds(bin: &str, input: &std::path::Path, query: &str) -> f64 {
 
 /// Alternating CLI/server rounds in the overhead table.
 const OVERHEAD_ROUNDS: usize = 3;
+/// Jobs per store in the job API table.
+const JOB_API_ROUNDS: usize = 10;
 
 fn main() {
     let bin = env!("CARGO_BIN_EXE_meshsmooth");
@@ -265,22 +362,9 @@ fn main() {
         meshes.push((extra, vertices, Bytes::from(text)));
     }
 
-    let mut server = Command::new(bin)
-        .args(["serve", "--listen", "127.0.0.1:0", "--queue-capacity", "64"])
-        .args(["--log", "warn"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start the server");
-    let mut line = String::new();
-    BufReader::new(server.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("listening line");
-    let addr: SocketAddr = line
-        .trim()
-        .strip_prefix("meshsmooth listening on http://")
-        .and_then(|a| a.parse().ok())
-        .expect("bound address");
+    let stores: Vec<String> = std::iter::once("memory".to_owned())
+        .chain(store_argument())
+        .collect();
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -290,65 +374,96 @@ fn main() {
 
     println!("# meshsmooth load benchmark");
     println!(
-        "server: {addr}, workers = {cores} (cores), parameters: {}",
+        "workers = {cores} (cores), stores: {}, parameters: {}",
+        stores.join(", "),
         if query.is_empty() { "defaults" } else { &query }
     );
     println!();
     println!(
-        "| mesh | vertices | MB | clients | requests | req/s | Mvertices/s | min s | p50 s | p90 s | p99 s | max s | mean run s |"
+        "| store | mesh | vertices | MB | clients | requests | req/s | Mvertices/s | min s | p50 s | p90 s | p99 s | max s | mean run s |"
     );
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let mut single_client = Vec::new();
-    for (name, vertices, body) in &meshes {
+    // One server per store, all up for the whole run.
+    let servers: Vec<(String, std::process::Child, SocketAddr)> = stores
+        .iter()
+        .map(|store| {
+            let (child, addr) = start_server(bin, store);
+            (store.clone(), child, addr)
+        })
+        .collect();
+    for (store, _, addr) in &servers {
+        for (name, vertices, body) in &meshes {
+            for &c in &clients {
+                let requests = fixed_requests.unwrap_or(c.max(8));
+                let start = Instant::now();
+                let outcomes = runtime.block_on(load(*addr, &path, body, c, requests));
+                let wall = start.elapsed().as_secs_f64();
+                let mut lat: Vec<f64> = outcomes.iter().map(|o| o.latency.as_secs_f64()).collect();
+                lat.sort_by(f64::total_cmp);
+                let run_mean =
+                    outcomes.iter().map(|o| o.run_seconds).sum::<f64>() / outcomes.len() as f64;
+                println!(
+                    "| {store} | {name} | {vertices} | {:.1} | {c} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                    body.len() as f64 / 1e6,
+                    outcomes.len(),
+                    outcomes.len() as f64 / wall,
+                    (outcomes.len() * vertices) as f64 / wall / 1e6,
+                    lat.first().copied().unwrap_or(f64::NAN),
+                    percentile(&lat, 50.0),
+                    percentile(&lat, 90.0),
+                    percentile(&lat, 99.0),
+                    lat.last().copied().unwrap_or(f64::NAN),
+                    run_mean,
+                );
+            }
+        }
+    }
+    for (_, vertices, body) in &meshes {
         let file = dir.join(format!("{vertices}.obj"));
         std::fs::write(&file, body).expect("write mesh");
-        for &c in &clients {
-            let requests = fixed_requests.unwrap_or(c.max(8));
-            let next = Arc::new(std::sync::atomic::AtomicUsize::new(0));
-            let start = Instant::now();
-            let outcomes: Vec<Outcome> = runtime.block_on(async {
-                let tasks: Vec<_> = (0..c)
-                    .map(|_| {
-                        let next = next.clone();
-                        let body = body.clone();
-                        let path = path.clone();
-                        tokio::spawn(async move {
-                            let mut mine = Vec::new();
-                            while next.fetch_add(1, std::sync::atomic::Ordering::Relaxed) < requests
-                            {
-                                mine.push(smooth_once(addr, &path, body.clone()).await);
-                            }
-                            mine
-                        })
-                    })
-                    .collect();
-                let mut all = Vec::new();
-                for t in tasks {
-                    all.extend(t.await.expect("client task"));
-                }
-                all
-            });
-            let wall = start.elapsed().as_secs_f64();
-            let mut lat: Vec<f64> = outcomes.iter().map(|o| o.latency.as_secs_f64()).collect();
-            lat.sort_by(f64::total_cmp);
-            let run_mean =
-                outcomes.iter().map(|o| o.run_seconds).sum::<f64>() / outcomes.len() as f64;
+        single_client.push(file);
+    }
+
+    println!();
+    println!("## One client through the job API, per store");
+    println!();
+    println!(
+        "Submit, poll every 20 ms, fetch mesh and report, delete; {JOB_API_ROUNDS} jobs per \
+         store, the stores taking turns job by job (so that load from elsewhere on the machine \
+         hits them alike); median and spread."
+    );
+    println!();
+    println!(
+        "| store | mesh | median s | min s | max s | vs memory % | median of paired differences s |"
+    );
+    println!("|---|---|---:|---:|---:|---:|---:|");
+    let jobs_path = path.replacen("/v1/smooth", "/v1/jobs", 1);
+    for (name, _, body) in &meshes {
+        let mut times: Vec<Vec<f64>> = vec![Vec::new(); servers.len()];
+        for _ in 0..JOB_API_ROUNDS {
+            for (i, (_, _, addr)) in servers.iter().enumerate() {
+                let t = runtime.block_on(job_api_once(*addr, &jobs_path, body.clone()));
+                times[i].push(t.as_secs_f64());
+            }
+        }
+        let memory = median(times[0].clone());
+        for ((store, _, _), t) in servers.iter().zip(&times) {
+            // Each job against the memory job of the same round.
+            let paired: Vec<f64> = t.iter().zip(&times[0]).map(|(x, m)| x - m).collect();
+            let mut sorted = t.clone();
+            sorted.sort_by(f64::total_cmp);
+            let m = median(t.clone());
             println!(
-                "| {name} | {vertices} | {:.1} | {c} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
-                body.len() as f64 / 1e6,
-                outcomes.len(),
-                outcomes.len() as f64 / wall,
-                (outcomes.len() * vertices) as f64 / wall / 1e6,
-                lat.first().copied().unwrap_or(f64::NAN),
-                percentile(&lat, 50.0),
-                percentile(&lat, 90.0),
-                percentile(&lat, 99.0),
-                lat.last().copied().unwrap_or(f64::NAN),
-                run_mean,
+                "| {store} | {name} | {m:.3} | {:.3} | {:.3} | {:+.1} | {:+.3} |",
+                sorted.first().copied().unwrap_or(f64::NAN),
+                sorted.last().copied().unwrap_or(f64::NAN),
+                100.0 * (m - memory) / memory,
+                median(paired)
             );
         }
-        single_client.push((name.clone(), *vertices, body.clone(), file));
     }
+    let addr = servers[0].2;
     println!();
     println!("## Server overhead per request vs `meshsmooth smooth` (1 client)");
     println!();
@@ -361,7 +476,7 @@ fn main() {
         "| mesh | vertices | CLI s | server end-to-end s | overhead s | overhead % | server pipeline s |"
     );
     println!("|---|---:|---:|---:|---:|---:|---:|");
-    for (name, vertices, body, file) in single_client {
+    for ((name, vertices, body), file) in meshes.iter().zip(single_client) {
         let mut cli = Vec::new();
         let mut e2e = Vec::new();
         let mut run = Vec::new();
@@ -378,7 +493,9 @@ fn main() {
             100.0 * (e2e - cli) / cli
         );
     }
-    let _ = server.kill();
-    let _ = server.wait();
+    for (_, mut server, _) in servers {
+        let _ = server.kill();
+        let _ = server.wait();
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -126,6 +126,9 @@ pub struct JobView {
     /// Seconds spent running (so far, while running).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub run_seconds: Option<f64>,
+    /// Times the job was started: 0 while queued, 1 once running; more
+    /// when a replica died while running it and another ran it again.
+    pub attempts: u32,
     /// The uploaded mesh.
     pub input: InputView,
     /// Format the result is written in.
@@ -167,6 +170,7 @@ impl JobView {
             expires_at: None,
             queue_seconds: job.created.elapsed().as_secs_f64(),
             run_seconds: None,
+            attempts: job.attempts(),
             input: InputView {
                 format: job.input.format.name().to_owned(),
                 vertices: job.input.vertices,
@@ -186,7 +190,11 @@ impl JobView {
             },
         };
         match job.state() {
-            JobState::Queued => view.queue_position = jobs.queue_position(&job.id),
+            JobState::Queued => {
+                view.queue_position = job
+                    .stored_queue_position()
+                    .or_else(|| jobs.queue_position(&job.id));
+            }
             JobState::Running {
                 started,
                 started_at,
@@ -219,8 +227,8 @@ impl JobView {
                         view.state = JobStatus::Succeeded;
                         view.result = Some(ResultView {
                             available: result.is_some(),
-                            mesh_bytes: result.as_ref().map(|r| r.mesh.len() as u64),
-                            report_bytes: result.as_ref().map(|r| r.report.len() as u64),
+                            mesh_bytes: result.as_ref().map(|r| r.mesh_bytes),
+                            report_bytes: result.as_ref().map(|r| r.report_bytes),
                         });
                     }
                     Outcome::Failed(problem) => {

@@ -94,6 +94,24 @@ pub struct ServeArgs {
     #[arg(long, env = "MESHSMOOTH_HTTP_THREADS", default_value = "2")]
     pub http_threads: NonZeroUsize,
 
+    /// Where jobs, the queue and results live: `memory` (this process; the
+    /// default, no server needed) or `redis://HOST:PORT[/DB]`, a Redis
+    /// shared by every replica, so any replica answers for any job and
+    /// accepted jobs survive restarts.
+    #[arg(long, env = "MESHSMOOTH_STORE", default_value = "memory")]
+    pub store: String,
+
+    /// With the Redis store: how long a running job stays claimed by its
+    /// replica without a renewal (renewed every 200 ms). When a replica
+    /// dies, another runs its jobs again after this long.
+    #[arg(long, env = "MESHSMOOTH_LEASE", default_value = "15s", value_parser = parse_duration)]
+    pub lease: Duration,
+
+    /// With the Redis store: runs of one job (first run and reruns after
+    /// its replica died) before it fails with `job_attempts_exhausted`.
+    #[arg(long, env = "MESHSMOOTH_MAX_ATTEMPTS", default_value_t = 3)]
+    pub max_attempts: u32,
+
     /// Honour the `x-meshsmooth-test-hook` request header (`panic`,
     /// `sleep=MS`). For the end-to-end tests only.
     #[arg(long, env = "MESHSMOOTH_ENABLE_TEST_HOOKS", hide = true)]
@@ -238,6 +256,9 @@ mod tests {
         assert_eq!(a.log, "info");
         assert_eq!(a.http_threads.get(), 2);
         assert!(!a.enable_test_hooks);
+        assert_eq!(a.store, "memory");
+        assert_eq!(a.lease, Duration::from_secs(15));
+        assert_eq!(a.max_attempts, 3);
     }
 
     #[test]

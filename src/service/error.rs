@@ -27,7 +27,6 @@ macro_rules! service_codes {
 
         impl Code {
             /// The service's own codes, in declaration order.
-            #[cfg(test)]
             pub const SERVICE: &[Code] = &[$(Code::$variant,)*];
 
             /// The snake_case text, e.g. `queue_full`.
@@ -100,6 +99,11 @@ service_codes! {
     JobPanicked = "job_panicked",
     /// A result could not be written in the format asked for.
     ConversionFailed = "conversion_failed",
+    /// The shared job store (Redis) cannot be reached.
+    StoreUnavailable = "store_unavailable",
+    /// Every run of the job ended without an outcome (its worker crashed,
+    /// was killed or lost its lease) up to the attempts limit.
+    JobAttemptsExhausted = "job_attempts_exhausted",
 }
 
 impl Code {
@@ -123,8 +127,14 @@ impl Code {
             UnknownParameter | InvalidParameter | ConversionFailed => {
                 StatusCode::UNPROCESSABLE_ENTITY
             }
-            QueueFull | ShuttingDown | JobTimeLimitExceeded => StatusCode::SERVICE_UNAVAILABLE,
-            InternalError | JobPanicked => StatusCode::INTERNAL_SERVER_ERROR,
+            // Unavailable for now. `store_unavailable`: the shared job store
+            // (Redis) cannot be reached; its answers carry `Retry-After`.
+            QueueFull | ShuttingDown | JobTimeLimitExceeded | StoreUnavailable => {
+                StatusCode::SERVICE_UNAVAILABLE
+            }
+            // Ours, not the client's. `job_attempts_exhausted`: a job whose
+            // worker died on every run (crash, kill, lost lease).
+            InternalError | JobPanicked | JobAttemptsExhausted => StatusCode::INTERNAL_SERVER_ERROR,
             Core(code) => match code {
                 // Too big: the mesh in the body.
                 ErrorCode::LimitExceeded | ErrorCode::MeshTooLarge => StatusCode::PAYLOAD_TOO_LARGE,
@@ -152,6 +162,16 @@ impl Code {
                 }
             },
         }
+    }
+}
+
+impl Code {
+    /// The code whose text is `text` (e.g. one read back from the shared
+    /// job store), if any.
+    pub fn parse(text: &str) -> Option<Code> {
+        let core = ErrorCode::ALL.iter().map(|&c| Code::Core(c));
+        core.chain(Code::SERVICE.iter().copied())
+            .find(|code| code.as_str() == text)
     }
 }
 
@@ -355,12 +375,9 @@ mod tests {
     #[test]
     fn statuses_follow_the_table() {
         let status = |code: &str| {
-            let all = ErrorCode::ALL.iter().map(|&c| Code::Core(c));
-            let code = all
-                .chain(Code::SERVICE.iter().copied())
-                .find(|c| c.as_str() == code)
-                .unwrap_or_else(|| panic!("no code {code}"));
-            code.status()
+            Code::parse(code)
+                .unwrap_or_else(|| panic!("no code {code}"))
+                .status()
         };
         assert_eq!(status("parse_error"), StatusCode::UNPROCESSABLE_ENTITY);
         assert_eq!(status("limit_exceeded"), StatusCode::PAYLOAD_TOO_LARGE);
@@ -375,6 +392,20 @@ mod tests {
             status("external_uri_not_allowed"),
             StatusCode::UNPROCESSABLE_ENTITY
         );
+        assert_eq!(status("store_unavailable"), StatusCode::SERVICE_UNAVAILABLE);
+        assert_eq!(
+            status("job_attempts_exhausted"),
+            StatusCode::INTERNAL_SERVER_ERROR
+        );
+    }
+
+    #[test]
+    fn every_code_parses_back_from_its_text() {
+        let core = ErrorCode::ALL.iter().map(|&c| Code::Core(c));
+        for code in core.chain(Code::SERVICE.iter().copied()) {
+            assert_eq!(Code::parse(code.as_str()), Some(code));
+        }
+        assert_eq!(Code::parse("no_such_code"), None);
     }
 
     #[test]

@@ -45,7 +45,26 @@ fn describe() {
         "meshsmooth_jobs",
         "Known jobs by state (queued, running, succeeded, failed, cancelled)"
     );
-    describe_gauge!("meshsmooth_queue_depth", "Jobs waiting for a worker");
+    describe_gauge!(
+        "meshsmooth_queue_depth",
+        "Jobs waiting for a worker (fleet-wide with the Redis store)"
+    );
+    describe_counter!(
+        "meshsmooth_job_attempts_total",
+        "Runs of jobs claimed from the Redis store by this replica (first runs and reruns)"
+    );
+    describe_counter!(
+        "meshsmooth_leases_reclaimed_total",
+        "Jobs this replica took over because the lease of the replica running them lapsed"
+    );
+    describe_counter!(
+        "meshsmooth_jobs_handed_back_total",
+        "Running jobs put back into the Redis queue by a shutdown"
+    );
+    describe_counter!(
+        "meshsmooth_store_errors_total",
+        "Failed calls to the Redis store (unreachable, timed out)"
+    );
     describe_gauge!(
         "meshsmooth_queue_capacity",
         "Most jobs that may wait for a worker"
@@ -112,8 +131,8 @@ fn describe() {
 }
 
 /// Samples the job system into gauges (called before each render).
-pub fn record_gauges(jobs: &Jobs) {
-    let stats = jobs.stats();
+pub async fn record_gauges(jobs: &Jobs) {
+    let stats = jobs.stats().await;
     let settings = jobs.settings();
     for (state, n) in [
         ("queued", stats.queued),

@@ -26,7 +26,7 @@ use config::LogFormat;
 use hyper_util::rt::{TokioIo, TokioTimer};
 use hyper_util::server::graceful::GracefulShutdown;
 use hyper_util::service::TowerToHyperService;
-use jobs::{CancelReason, JobSettings, Jobs};
+use jobs::{Backend, JobSettings, Jobs, RedisSettings, RedisStore};
 use routes::AppState;
 use std::io::Write;
 use std::pin::pin;
@@ -98,13 +98,35 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
         args.queue_capacity >= 1,
         "--queue-capacity must be at least 1"
     );
-    let (jobs, worker_threads) = Jobs::start(JobSettings {
-        workers,
-        queue_capacity: args.queue_capacity,
-        time_limit: args.job_time_limit,
-        result_ttl: args.result_ttl,
-        result_memory: args.result_memory,
-    })
+    anyhow::ensure!(args.max_attempts >= 1, "--max-attempts must be at least 1");
+    let backend = match args.store.trim() {
+        "" | "memory" => Backend::Memory,
+        url if url.starts_with("redis://") || url.starts_with("rediss://") => {
+            let store = RedisStore::connect(RedisSettings {
+                url: url.to_owned(),
+                lease: args.lease,
+                max_attempts: args.max_attempts,
+                result_ttl: args.result_ttl,
+            })
+            .await?;
+            Backend::Redis(Arc::new(store))
+        }
+        other => anyhow::bail!("unknown --store `{other}`: use `memory` or redis://HOST:PORT[/DB]"),
+    };
+    let store_name = match &backend {
+        Backend::Memory => "memory",
+        Backend::Redis(_) => "redis",
+    };
+    let (jobs, mut worker_threads) = Jobs::start(
+        JobSettings {
+            workers,
+            queue_capacity: args.queue_capacity,
+            time_limit: args.job_time_limit,
+            result_ttl: args.result_ttl,
+            result_memory: args.result_memory,
+        },
+        backend,
+    )
     .context("cannot start the worker threads")?;
     let (stopping_tx, stopping) = watch::channel(false);
     let state = AppState {
@@ -138,6 +160,7 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
         %addr,
         workers,
         queue_capacity = args.queue_capacity,
+        store = store_name,
         max_upload_bytes = args.max_upload_bytes,
         "meshsmooth serve started"
     );
@@ -149,7 +172,7 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
             let mut n: u64 = 0;
             loop {
                 tick.tick().await;
-                jobs.sweep();
+                jobs.sweep().await;
                 n += 1;
                 if n.is_multiple_of(25) {
                     metrics.run_upkeep();
@@ -186,8 +209,10 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
         }
     }
 
-    // Stop accepting: no new connections, no new jobs; queued jobs are
-    // cancelled, running jobs and open requests get the shutdown timeout.
+    // Stop accepting: no new connections, no new jobs. Until the shutdown
+    // timeout, running jobs finish, and with the memory store the queued
+    // ones too; then what is left is cancelled (memory) or handed back to
+    // the shared queue (Redis), and open requests are cut.
     info!(
         timeout_s = args.shutdown_timeout.as_secs_f64(),
         "shutting down"
@@ -199,8 +224,10 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
     let drain_workers = tokio::task::spawn_blocking(move || {
         let finished = worker_threads.join(deadline);
         if !finished {
-            warn!("running jobs did not finish in time; cancelling them");
-            jobs.cancel_running(CancelReason::Shutdown);
+            warn!("jobs did not finish before the shutdown deadline; stopping them");
+            jobs.abandon();
+            // Cancelled jobs stop at the pipeline's next check.
+            worker_threads.join(ABANDON_GRACE);
         }
         finished
     });
@@ -214,6 +241,10 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
     );
     Ok(())
 }
+
+/// After the shutdown deadline: how long stopped jobs get to be filed (or
+/// handed back) before the process exits anyway.
+const ABANDON_GRACE: Duration = Duration::from_secs(5);
 
 /// Resolves on SIGINT or SIGTERM.
 async fn shutdown_signal() {

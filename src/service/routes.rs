@@ -7,7 +7,8 @@ use crate::service::api::{
 };
 use crate::service::error::{Code, Problem, ProblemDetails};
 use crate::service::jobs::{
-    CancelReason, Deleted, Job, JobResult, JobState, Jobs, Outcome, Submission, TestHook,
+    CancelReason, Deleted, HeldResult, Job, JobResult, JobState, JobWatch, Jobs, Outcome,
+    Submission, TestHook,
 };
 use crate::service::upload::{UploadConfig, parse_output_format, read_upload};
 use axum::body::{Body, Bytes};
@@ -60,11 +61,11 @@ pub struct AppState {
 }
 
 impl AppState {
-    fn job(&self, id: &str) -> Result<Arc<Job>, Problem> {
-        Uuid::parse_str(id)
-            .ok()
-            .and_then(|id| self.jobs.get(&id))
-            .ok_or_else(|| job_not_found(id))
+    async fn job(&self, id: &str) -> Result<Arc<Job>, Problem> {
+        let Ok(uuid) = Uuid::parse_str(id) else {
+            return Err(job_not_found(id));
+        };
+        self.jobs.get(&uuid).await?.ok_or_else(|| job_not_found(id))
     }
 
     fn test_hook(&self, headers: &HeaderMap) -> Result<Option<TestHook>, Problem> {
@@ -94,7 +95,7 @@ impl AppState {
     async fn submit(&self, req: Request) -> Result<Arc<Job>, Problem> {
         // Refuse before reading a body that could not be queued anyway, and
         // bound the uploads held in memory at once.
-        self.jobs.check_room()?;
+        self.jobs.check_room().await?;
         let _slot = self.upload_slots.clone().try_acquire_owned().map_err(|_| {
             let slots = self.jobs.settings().queue_capacity + self.jobs.settings().workers;
             metrics::counter!("meshsmooth_jobs_rejected_total", "reason" => "uploads_full")
@@ -108,14 +109,17 @@ impl AppState {
         let hook = self.test_hook(req.headers())?;
         let request_id = request_id(req.headers());
         let upload = read_upload(req, &self.upload).await?;
-        self.jobs.submit(Submission {
-            document: upload.document,
-            params: upload.params,
-            output_format: upload.output_format,
-            upload_bytes: upload.bytes,
-            request_id,
-            hook,
-        })
+        self.jobs
+            .submit(Submission {
+                document: upload.document,
+                params: upload.params,
+                output_format: upload.output_format,
+                upload_bytes: upload.bytes,
+                raw: upload.raw,
+                request_id,
+                hook,
+            })
+            .await
     }
 }
 
@@ -307,9 +311,13 @@ async fn smooth(State(state): State<AppState>, req: Request) -> Result<Response,
         .and_then(|v| v.to_str().ok())
         .is_some_and(|a| a.contains("multipart/mixed"));
     let job = state.submit(req).await?;
-    let guard = CancelOnDrop(Some(job.clone()));
-    let final_state = job.finished().await;
+    let guard = CancelOnDrop(Some((job.clone(), state.jobs.clone())));
+    let finished = state.jobs.finished(&job).await?;
     drop(guard.disarm());
+    let final_state = match &finished {
+        Some(job) => job.state(),
+        None => return Err(job_not_found(&job.id.to_string())),
+    };
     let mut headers = HeaderMap::new();
     let path = job_path(&job.id);
     let links = format!(
@@ -325,6 +333,10 @@ async fn smooth(State(state): State<AppState>, req: Request) -> Result<Response,
         }
     }
     let result = match result_of(&job, final_state) {
+        Ok(held) => load_result(&state.jobs, &job, held).await,
+        Err(problem) => Err(problem),
+    };
+    let result = match result {
         Ok(result) => result,
         Err(problem) => {
             headers.remove(header::CONTENT_LOCATION);
@@ -346,21 +358,21 @@ async fn smooth(State(state): State<AppState>, req: Request) -> Result<Response,
 
 /// Cancels the job if the one-call request is dropped (client gone)
 /// before it finished.
-struct CancelOnDrop(Option<Arc<Job>>);
+struct CancelOnDrop(Option<(Arc<Job>, Jobs)>);
 
 impl CancelOnDrop {
-    fn disarm(mut self) -> Option<Arc<Job>> {
+    fn disarm(mut self) -> Option<(Arc<Job>, Jobs)> {
         self.0.take()
     }
 }
 
 impl Drop for CancelOnDrop {
     fn drop(&mut self) {
-        if let Some(job) = self.0.take()
+        if let Some((job, jobs)) = self.0.take()
             && !job.is_finished()
         {
             tracing::info!(job_id = %job.id, "client of /v1/smooth went away; cancelling its job");
-            job.request_cancel(CancelReason::Client);
+            jobs.cancel(&job);
         }
     }
 }
@@ -405,7 +417,7 @@ fn mesh_response(id: &Uuid, format: Format, bytes: Bytes) -> Response {
 }
 
 /// The result of a finished job, or the problem that stands in for it.
-fn result_of(job: &Job, state: JobState) -> Result<Arc<JobResult>, Problem> {
+fn result_of(job: &Job, state: JobState) -> Result<HeldResult, Problem> {
     match state {
         JobState::Queued => Err(Problem::new(
             Code::JobNotFinished,
@@ -424,14 +436,7 @@ fn result_of(job: &Job, state: JobState) -> Result<Arc<JobResult>, Problem> {
         )),
         JobState::Finished { outcome, .. } => match outcome {
             Outcome::Succeeded(Some(result)) => Ok(result),
-            Outcome::Succeeded(None) => Err(Problem::new(
-                Code::ResultEvicted,
-                format!(
-                    "the result of job {} was evicted to stay under the result memory budget; \
-                     submit the mesh again",
-                    job.id
-                ),
-            )),
+            Outcome::Succeeded(None) => Err(evicted(job)),
             Outcome::Failed(problem) => Err(problem),
             Outcome::Cancelled(CancelReason::Shutdown) => Err(Problem::new(
                 Code::ShuttingDown,
@@ -448,10 +453,26 @@ fn result_of(job: &Job, state: JobState) -> Result<Arc<JobResult>, Problem> {
     }
 }
 
+/// The bytes of a held result; `result_evicted` once they are gone.
+async fn load_result(jobs: &Jobs, job: &Job, held: HeldResult) -> Result<Arc<JobResult>, Problem> {
+    jobs.result(job, held).await?.ok_or_else(|| evicted(job))
+}
+
+fn evicted(job: &Job) -> Problem {
+    Problem::new(
+        Code::ResultEvicted,
+        format!(
+            "the result of job {} was evicted to stay under the result memory budget; \
+             submit the mesh again",
+            job.id
+        ),
+    )
+}
+
 /// Like [`result_of`], but a failed job is a conflict for the result
 /// routes (the job's own problem is in its `error`).
-fn stored_result(job: &Job) -> Result<Arc<JobResult>, Problem> {
-    result_of(job, job.state()).map_err(|p| match p.code {
+async fn stored_result(jobs: &Jobs, job: &Job) -> Result<Arc<JobResult>, Problem> {
+    let held = result_of(job, job.state()).map_err(|p| match p.code {
         Code::JobNotFinished | Code::ResultEvicted | Code::JobCancelled => p,
         Code::ShuttingDown => Problem::new(
             Code::JobCancelled,
@@ -461,7 +482,8 @@ fn stored_result(job: &Job) -> Result<Arc<JobResult>, Problem> {
             Code::JobFailed,
             format!("job {} failed ({code}): {}", job.id, p.detail),
         ),
-    })
+    })?;
+    load_result(jobs, job, held).await
 }
 
 /// Get a job's state, progress, timings and links.
@@ -479,7 +501,7 @@ async fn get_job(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Json<JobView>, Problem> {
-    let job = state.job(&id)?;
+    let job = state.job(&id).await?;
     Ok(Json(JobView::of(&job, &state.jobs)))
 }
 
@@ -505,8 +527,8 @@ async fn delete_job(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Response, Problem> {
-    let job = state.job(&id)?;
-    Ok(match state.jobs.delete(&job.id) {
+    let job = state.job(&id).await?;
+    Ok(match state.jobs.delete(&job.id).await? {
         Some(Deleted::Cancelled(job)) => {
             (StatusCode::OK, Json(JobView::of(&job, &state.jobs))).into_response()
         }
@@ -515,7 +537,7 @@ async fn delete_job(
         }
         Some(Deleted::Forgotten) => StatusCode::NO_CONTENT.into_response(),
         // Deleted or expired meanwhile.
-        None => return Err(state.job(&id).err().unwrap_or_else(|| job_not_found(&id))),
+        None => return Err(job_not_found(&id)),
     })
 }
 
@@ -549,13 +571,13 @@ async fn job_mesh(
     Path(id): Path<String>,
     Query(query): Query<MeshQuery>,
 ) -> Result<Response, Problem> {
-    let job = state.job(&id)?;
+    let job = state.job(&id).await?;
     let format = query
         .format
         .as_deref()
         .map(parse_output_format)
         .transpose()?;
-    let result = stored_result(&job)?;
+    let result = stored_result(&state.jobs, &job).await?;
     let format = format.unwrap_or(result.format);
     let bytes = if format == result.format {
         result.mesh.clone()
@@ -608,8 +630,8 @@ async fn job_report(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Response, Problem> {
-    let job = state.job(&id)?;
-    let result = stored_result(&job)?;
+    let job = state.job(&id).await?;
+    let result = stored_result(&state.jobs, &job).await?;
     Ok((
         [(
             header::CONTENT_TYPE,
@@ -639,12 +661,10 @@ async fn job_events(
     State(state): State<AppState>,
     Path(id): Path<String>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, Problem> {
-    let job = state.job(&id)?;
-    let changes = job.subscribe();
+    let job = state.job(&id).await?;
     let start = EventsState {
-        job,
+        watch: state.jobs.watch(&job),
         jobs: state.jobs.clone(),
-        changes,
         shutdown: state.shutdown.clone(),
         sent: 0,
     };
@@ -652,12 +672,14 @@ async fn job_events(
         let mut s = s?;
         if s.sent > 0 {
             tokio::select! {
-                changed = s.changes.changed() => changed.ok()?,
+                changed = s.watch.changed() => if !changed { return None },
                 _ = s.shutdown.wait_for(|stopping| *stopping) => return None,
             }
         }
-        s.changes.borrow_and_update();
-        let view = JobView::of(&s.job, &s.jobs);
+        // A store that cannot be read now ends the stream (the client
+        // reconnects, as for any event stream).
+        let job = s.watch.current().await.ok()??;
+        let view = JobView::of(&job, &s.jobs);
         let done = view.state.is_final();
         let event = Event::default()
             .event("state")
@@ -671,9 +693,8 @@ async fn job_events(
 }
 
 struct EventsState {
-    job: Arc<Job>,
+    watch: JobWatch,
     jobs: Jobs,
-    changes: watch::Receiver<u64>,
     shutdown: watch::Receiver<bool>,
     sent: u64,
 }
@@ -718,15 +739,15 @@ async fn healthz() -> Json<HealthView> {
     tag = "operations",
     responses(
         (status = 200, description = "Accepting jobs", body = HealthView),
-        (status = 503, description = "Shutting down (`shutting_down`) or queue full (`queue_full`)", body = ProblemDetails, content_type = "application/problem+json"),
+        (status = 503, description = "Shutting down (`shutting_down`), queue full (`queue_full`) or the shared job store unreachable (`store_unavailable`)", body = ProblemDetails, content_type = "application/problem+json"),
     )
 )]
 async fn readyz(State(state): State<AppState>) -> Response {
     if *state.shutdown.borrow() {
         return Problem::new(Code::ShuttingDown, "the service is shutting down").into_response();
     }
-    if !state.jobs.accepting() {
-        return Problem::new(Code::QueueFull, "the job queue is full").into_response();
+    if let Err(problem) = state.jobs.ready().await {
+        return problem.into_response();
     }
     Json(HealthView {
         status: "ready".into(),
@@ -742,7 +763,7 @@ async fn readyz(State(state): State<AppState>) -> Response {
     responses((status = 200, description = "Metrics in the Prometheus text format", body = String, content_type = "text/plain; version=0.0.4"))
 )]
 async fn metrics(State(state): State<AppState>) -> Response {
-    crate::service::metrics::record_gauges(&state.jobs);
+    crate::service::metrics::record_gauges(&state.jobs).await;
     (
         [(
             header::CONTENT_TYPE,

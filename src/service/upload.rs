@@ -4,7 +4,7 @@
 //! blocking pool once the parameters are known (they choose the welding).
 
 use crate::service::error::{Code, Problem, params_problem};
-use axum::body::Body;
+use axum::body::{Body, Bytes};
 use axum::extract::{FromRequest, Multipart, Query};
 use axum::http::{HeaderMap, Request, Uri, header};
 use futures_util::StreamExt;
@@ -52,6 +52,8 @@ pub struct Upload {
     pub output_format: Format,
     /// Size of the mesh file in bytes.
     pub bytes: u64,
+    /// The mesh file as received.
+    pub raw: Bytes,
 }
 
 /// What a raw (non-multipart) upload is, from its `Content-Type`.
@@ -156,12 +158,14 @@ pub async fn read_upload(req: Request<Body>, config: &UploadConfig) -> Result<Up
     };
     let bytes = raw.bytes.len() as u64;
     metrics::counter!("meshsmooth_upload_bytes_total").increment(bytes);
-    let document = parse(raw.bytes, format, params.clone(), config).await?;
+    let raw_bytes = Bytes::from(raw.bytes);
+    let document = parse(raw_bytes.clone(), format, params.clone(), config).await?;
     Ok(Upload {
         output_format: query.output_format.unwrap_or(document.format()),
         document,
         params,
         bytes,
+        raw: raw_bytes,
     })
 }
 
@@ -331,7 +335,7 @@ fn multipart_problem(e: axum::extract::multipart::MultipartError) -> Problem {
 /// under the configured limits on the blocking pool, a bounded number at a
 /// time.
 async fn parse(
-    bytes: Vec<u8>,
+    bytes: Bytes,
     format: Format,
     params: Params,
     config: &UploadConfig,

@@ -7,5 +7,6 @@ mod jobs;
 mod operations;
 mod overload;
 mod parity;
+mod shared;
 mod support;
 mod weld;

@@ -7,9 +7,17 @@
 //! inside `catch_unwind`, so a panic fails that job only. Finished jobs are
 //! kept for a time to live; their results count against a memory budget,
 //! the oldest evicted first.
+//!
+//! Where jobs live is the [`Backend`]: the memory of this process (the
+//! default, no server needed), or a Redis shared by every replica
+//! ([`redis`]), where workers claim jobs with renewable leases and any
+//! replica answers for any job.
 
+mod redis;
 mod store;
 mod worker;
+
+pub use redis::{RedisSettings, RedisStore};
 
 use crate::service::error::{Code, Problem};
 use axum::body::Bytes;
@@ -17,12 +25,13 @@ use meshsmooth_core::io::Format;
 use meshsmooth_core::job::Input;
 use meshsmooth_core::{Params, Stage};
 use std::collections::VecDeque;
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant, SystemTime};
 use store::Store;
 use tokio::sync::watch;
+use tracing::warn;
 use uuid::Uuid;
 
 /// Locks `m`, ignoring poisoning: job state stays consistent under panics
@@ -67,6 +76,9 @@ pub struct Submission {
     pub output_format: Format,
     /// Size of the uploaded mesh file.
     pub upload_bytes: u64,
+    /// The uploaded file as received (kept by a shared store, where
+    /// another replica may run the job).
+    pub raw: Bytes,
     /// `x-request-id` of the request that submitted the job.
     pub request_id: String,
     /// Fault injection for tests.
@@ -95,10 +107,26 @@ pub struct JobResult {
     pub report: Bytes,
 }
 
-impl JobResult {
-    /// Bytes held in memory.
-    pub fn bytes(&self) -> u64 {
-        (self.mesh.len() + self.report.len()) as u64
+/// A succeeded job's result as the store holds it: its sizes, and the
+/// bytes when they are at hand (a shared store fetches them on demand).
+#[derive(Debug, Clone)]
+pub struct HeldResult {
+    /// Size of the smoothed mesh file.
+    pub mesh_bytes: u64,
+    /// Size of the JSON report.
+    pub report_bytes: u64,
+    /// The result itself, when held in this process.
+    pub data: Option<Arc<JobResult>>,
+}
+
+impl HeldResult {
+    /// A result held in this process.
+    pub fn here(result: JobResult) -> HeldResult {
+        HeldResult {
+            mesh_bytes: result.mesh.len() as u64,
+            report_bytes: result.report.len() as u64,
+            data: Some(Arc::new(result)),
+        }
     }
 }
 
@@ -106,7 +134,7 @@ impl JobResult {
 #[derive(Debug, Clone)]
 pub enum Outcome {
     /// Smoothed; `None` once the result was evicted for memory.
-    Succeeded(Option<Arc<JobResult>>),
+    Succeeded(Option<HeldResult>),
     /// Failed with this problem.
     Failed(Problem),
     /// Cancelled before it finished.
@@ -178,6 +206,24 @@ pub struct Job {
     cancel_reason: Mutex<Option<CancelReason>>,
     state: Mutex<JobState>,
     changes: watch::Sender<u64>,
+    /// Times the job was started (a shared store runs a job again when
+    /// the replica running it died).
+    attempts: AtomicU32,
+    /// 0-based place in the queue when known from the store.
+    queue_position: Option<usize>,
+    /// The lease of a job claimed from a shared store.
+    claim: Option<Claim>,
+}
+
+/// A worker's hold on a job of a shared store: the queue entry it claimed
+/// and the attempt it runs.
+#[derive(Debug)]
+pub(crate) struct Claim {
+    entry: String,
+    attempt: u32,
+    consumer: String,
+    /// Set when another worker took the job over (our lease lapsed).
+    lost: AtomicBool,
 }
 
 impl Job {
@@ -202,7 +248,20 @@ impl Job {
             cancel_reason: Mutex::new(None),
             state: Mutex::new(JobState::Queued),
             changes: watch::Sender::new(0),
+            attempts: AtomicU32::new(0),
+            queue_position: None,
+            claim: None,
         }
+    }
+
+    /// Times the job was started.
+    pub fn attempts(&self) -> u32 {
+        self.attempts.load(Ordering::Relaxed)
+    }
+
+    /// 0-based place in the queue, when the store knows it.
+    pub fn stored_queue_position(&self) -> Option<usize> {
+        self.queue_position
     }
 
     /// A snapshot of the state.
@@ -260,6 +319,7 @@ impl Job {
 
     fn set_running(&self) -> Instant {
         let started = Instant::now();
+        self.attempts.fetch_max(1, Ordering::Relaxed);
         *lock(&self.state) = JobState::Running {
             started,
             started_at: SystemTime::now(),
@@ -341,29 +401,44 @@ struct Queue {
     closed: bool,
 }
 
+/// Where jobs live.
+#[derive(Debug, Clone)]
+pub enum Backend {
+    /// In this process: the queue and results go with it.
+    Memory,
+    /// In a Redis shared by every replica (`--store redis://…`).
+    Redis(Arc<RedisStore>),
+}
+
 #[derive(Debug)]
 struct Inner {
     settings: JobSettings,
+    backend: Backend,
+    /// The async runtime, for the worker threads' calls to a shared store.
+    runtime: tokio::runtime::Handle,
     queue: Mutex<Queue>,
     work_ready: Condvar,
+    /// Every job (memory backend), or the jobs running here (shared).
     store: Mutex<Store>,
     busy: AtomicUsize,
     /// Moving average of run times, in milliseconds, for `Retry-After`.
     mean_run_ms: AtomicU64,
+    /// Set when the shutdown deadline passed: queued work is given up.
+    abandoned: AtomicBool,
 }
 
 /// Counts for `/metrics` and `/readyz`.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Stats {
-    /// Jobs waiting for a worker.
+    /// Jobs waiting for a worker (fleet-wide with a shared store).
     pub queued: usize,
-    /// Jobs on a worker.
+    /// Jobs on a worker (of this replica with a shared store).
     pub running: usize,
-    /// Known jobs that succeeded.
+    /// Known jobs that succeeded (memory store only).
     pub succeeded: usize,
-    /// Known jobs that failed.
+    /// Known jobs that failed (memory store only).
     pub failed: usize,
-    /// Known jobs that were cancelled.
+    /// Known jobs that were cancelled (memory store only).
     pub cancelled: usize,
     /// Workers busy with a job.
     pub busy_workers: usize,
@@ -396,17 +471,66 @@ pub struct Workers {
     handles: Vec<JoinHandle<()>>,
 }
 
+/// Follows a job's changes: the job's own channel in memory, its stored
+/// version with a shared store.
+pub struct JobWatch {
+    jobs: Jobs,
+    job: Arc<Job>,
+    local: watch::Receiver<u64>,
+    version: Option<u64>,
+}
+
+impl JobWatch {
+    /// The job as it is now; None once it is gone from the store.
+    pub async fn current(&mut self) -> Result<Option<Arc<Job>>, Problem> {
+        match &self.jobs.inner.backend {
+            Backend::Memory => {
+                self.local.borrow_and_update();
+                Ok(Some(self.job.clone()))
+            }
+            Backend::Redis(store) => {
+                self.version = store.version(&self.job.id).await?;
+                let job = store.get(&self.job.id).await?;
+                if let Some(job) = &job {
+                    self.job = job.clone();
+                }
+                Ok(job)
+            }
+        }
+    }
+
+    /// Waits for the next change; false when no more can come.
+    pub async fn changed(&mut self) -> bool {
+        match &self.jobs.inner.backend {
+            Backend::Memory => self.local.changed().await.is_ok(),
+            Backend::Redis(store) => loop {
+                tokio::time::sleep(redis::POLL).await;
+                match store.version(&self.job.id).await {
+                    Ok(None) => return false,
+                    Ok(v) if v != self.version => return true,
+                    // Unchanged, or Redis is away for now: keep waiting.
+                    Ok(_) | Err(_) => {}
+                }
+            },
+        }
+    }
+}
+
 impl Jobs {
-    /// Starts `settings.workers` worker threads.
-    pub fn start(settings: JobSettings) -> std::io::Result<(Jobs, Workers)> {
+    /// Starts `settings.workers` worker threads on `backend`. Must be called
+    /// inside the async runtime.
+    pub fn start(settings: JobSettings, backend: Backend) -> std::io::Result<(Jobs, Workers)> {
         let store = Store::new(settings.result_memory, settings.result_ttl);
         let inner = Arc::new(Inner {
             settings,
+            backend,
+            runtime: tokio::runtime::Handle::current(),
             queue: Mutex::new(Queue::default()),
             work_ready: Condvar::new(),
             store: Mutex::new(store),
             busy: AtomicUsize::new(0),
             mean_run_ms: AtomicU64::new(1000),
+            abandoned: AtomicBool::new(false),
         });
         let handles = worker::spawn(&inner)?;
         Ok((Jobs { inner }, Workers { handles }))
@@ -419,17 +543,50 @@ impl Jobs {
 
     /// Refuses early, before an upload is read, when it could not be
     /// queued anyway.
-    pub fn check_room(&self) -> Result<(), Problem> {
-        let q = lock(&self.inner.queue);
-        match self.inner.refusal(&q) {
+    pub async fn check_room(&self) -> Result<(), Problem> {
+        let refusal = match &self.inner.backend {
+            Backend::Memory => self.inner.refusal(&lock(&self.inner.queue)),
+            Backend::Redis(store) => match self.inner.closed_refusal() {
+                Some(p) => Some(p),
+                None => self.inner.full_refusal(store.queued().await?),
+            },
+        };
+        match refusal {
             Some(problem) => Err(count_rejection(problem)),
             None => Ok(()),
         }
     }
 
-    /// Stores and queues a job, or refuses it whole (503 `queue_full` or
-    /// `shutting_down`).
-    pub fn submit(&self, submission: Submission) -> Result<Arc<Job>, Problem> {
+    /// Stores and queues a job, or refuses it whole (503 `queue_full`,
+    /// `shutting_down` or `store_unavailable`).
+    pub async fn submit(&self, mut submission: Submission) -> Result<Arc<Job>, Problem> {
+        let Backend::Redis(store) = &self.inner.backend else {
+            return self.submit_here(submission);
+        };
+        if let Some(problem) = self.inner.closed_refusal() {
+            return Err(count_rejection(problem));
+        }
+        let raw = std::mem::take(&mut submission.raw);
+        let job = Job::new(submission);
+        let Some(document) = job.take_document() else {
+            return Err(Problem::internal("the upload was not parsed"));
+        };
+        let capacity = self.inner.settings.queue_capacity;
+        match store.submit(&job, &raw, document, capacity).await? {
+            redis::Submitted::Queued => {
+                metrics::counter!("meshsmooth_jobs_submitted_total").increment(1);
+                Ok(Arc::new(job))
+            }
+            redis::Submitted::Full(queued) => {
+                let problem = self.inner.full_refusal(queued.max(capacity));
+                Err(count_rejection(
+                    problem.unwrap_or_else(|| self.inner.queue_full(capacity)),
+                ))
+            }
+        }
+    }
+
+    fn submit_here(&self, submission: Submission) -> Result<Arc<Job>, Problem> {
         let mut q = lock(&self.inner.queue);
         if let Some(problem) = self.inner.refusal(&q) {
             return Err(count_rejection(problem));
@@ -444,8 +601,56 @@ impl Jobs {
     }
 
     /// The job with `id`, unless unknown or expired.
-    pub fn get(&self, id: &Uuid) -> Option<Arc<Job>> {
-        lock(&self.inner.store).get(id)
+    pub async fn get(&self, id: &Uuid) -> Result<Option<Arc<Job>>, Problem> {
+        match &self.inner.backend {
+            Backend::Memory => Ok(lock(&self.inner.store).get(id)),
+            Backend::Redis(store) => store.get(id).await,
+        }
+    }
+
+    /// Follows the changes of `job`.
+    pub fn watch(&self, job: &Arc<Job>) -> JobWatch {
+        JobWatch {
+            jobs: self.clone(),
+            job: job.clone(),
+            local: job.subscribe(),
+            version: None,
+        }
+    }
+
+    /// Waits until `job` is finished; returns it as it finished (None if it
+    /// was forgotten meanwhile).
+    pub async fn finished(&self, job: &Arc<Job>) -> Result<Option<Arc<Job>>, Problem> {
+        if let Backend::Memory = self.inner.backend {
+            job.finished().await;
+            return Ok(Some(job.clone()));
+        }
+        let mut watch = self.watch(job);
+        loop {
+            match watch.current().await? {
+                Some(now) if now.is_finished() => return Ok(Some(now)),
+                Some(_) => {}
+                None => return Ok(None),
+            }
+            if !watch.changed().await {
+                return Ok(None);
+            }
+        }
+    }
+
+    /// The result bytes of a succeeded job; None once evicted or expired.
+    pub async fn result(
+        &self,
+        job: &Job,
+        held: HeldResult,
+    ) -> Result<Option<Arc<JobResult>>, Problem> {
+        if let Some(data) = held.data {
+            return Ok(Some(data));
+        }
+        match &self.inner.backend {
+            Backend::Memory => Ok(None),
+            Backend::Redis(store) => store.result(&job.id, job.output_format).await,
+        }
     }
 
     /// 0-based position of a queued job (0: next to run).
@@ -456,9 +661,39 @@ impl Jobs {
             .position(|j| j.id == *id)
     }
 
+    /// Asks a queued or running job to stop (the one-call client went
+    /// away); a finished job is left alone.
+    pub fn cancel(&self, job: &Arc<Job>) {
+        match &self.inner.backend {
+            Backend::Memory => job.request_cancel(CancelReason::Client),
+            Backend::Redis(store) => {
+                let (store, id) = (store.clone(), job.id);
+                let ttl = self.inner.settings.result_ttl;
+                self.inner.runtime.spawn(async move {
+                    let _ = store.delete(&id, ttl, false).await;
+                });
+            }
+        }
+    }
+
     /// Cancels a queued or running job, or forgets a finished one.
-    pub fn delete(&self, id: &Uuid) -> Option<Deleted> {
-        let job = self.get(id)?;
+    pub async fn delete(&self, id: &Uuid) -> Result<Option<Deleted>, Problem> {
+        let Backend::Redis(store) = &self.inner.backend else {
+            return Ok(self.delete_here(id));
+        };
+        let ttl = self.inner.settings.result_ttl;
+        let deleted = store.delete(id, ttl, true).await?;
+        let job = || async { store.get(id).await };
+        Ok(match deleted {
+            redis::DeleteOutcome::Missing => None,
+            redis::DeleteOutcome::Forgotten => Some(Deleted::Forgotten),
+            redis::DeleteOutcome::Cancelled => job().await?.map(Deleted::Cancelled),
+            redis::DeleteOutcome::Cancelling => job().await?.map(Deleted::Cancelling),
+        })
+    }
+
+    fn delete_here(&self, id: &Uuid) -> Option<Deleted> {
+        let job = lock(&self.inner.store).get(id)?;
         let queued = {
             let mut q = lock(&self.inner.queue);
             let at = q.items.iter().position(|j| j.id == *id);
@@ -480,11 +715,17 @@ impl Jobs {
 
     /// Forgets expired jobs and stops jobs past the time limit. Called
     /// periodically.
-    pub fn sweep(&self) {
+    pub async fn sweep(&self) {
         let expired = lock(&self.inner.store).expire(Instant::now());
-        if expired.results > 0 {
+        let mut expired_results = expired.results;
+        if let Backend::Redis(store) = &self.inner.backend {
+            // The shared store expires jobs itself; this keeps the result
+            // budget's count in step.
+            expired_results += store.sweep().await.unwrap_or(0);
+        }
+        if expired_results > 0 {
             metrics::counter!("meshsmooth_results_evicted_total", "reason" => "ttl")
-                .increment(expired.results as u64);
+                .increment(expired_results as u64);
         }
         if expired.jobs > 0 {
             metrics::counter!("meshsmooth_jobs_expired_total").increment(expired.jobs as u64);
@@ -509,7 +750,19 @@ impl Jobs {
     }
 
     /// Counts for metrics and readiness.
-    pub fn stats(&self) -> Stats {
+    pub async fn stats(&self) -> Stats {
+        let mut stats = self.local_stats();
+        if let Backend::Redis(store) = &self.inner.backend {
+            stats.queued = store.queued().await.unwrap_or(0);
+            if let Ok((results, bytes)) = store.results().await {
+                stats.results = results;
+                stats.result_bytes = bytes;
+            }
+        }
+        stats
+    }
+
+    fn local_stats(&self) -> Stats {
         let queued = lock(&self.inner.queue).items.len();
         let store = lock(&self.inner.store);
         let mut stats = Stats {
@@ -533,24 +786,47 @@ impl Jobs {
         stats
     }
 
-    /// True when a new job would be accepted now.
-    pub fn accepting(&self) -> bool {
-        self.inner.refusal(&lock(&self.inner.queue)).is_none()
+    /// Ok when a new job would be accepted now; else the problem a
+    /// submission would get (`/readyz`).
+    pub async fn ready(&self) -> Result<(), Problem> {
+        match &self.inner.backend {
+            Backend::Memory => match self.inner.refusal(&lock(&self.inner.queue)) {
+                Some(problem) => Err(problem),
+                None => Ok(()),
+            },
+            Backend::Redis(store) => {
+                if let Some(problem) = self.inner.closed_refusal() {
+                    return Err(problem);
+                }
+                match self.inner.full_refusal(store.queued().await?) {
+                    Some(problem) => Err(problem),
+                    None => Ok(()),
+                }
+            }
+        }
     }
 
-    /// Stops accepting jobs and cancels the queued ones; running jobs go on.
+    /// Stops accepting jobs and claiming new ones. With the memory store
+    /// the workers go on with the queued jobs; with a shared store they
+    /// stay queued for the other replicas.
     pub fn close(&self) {
-        let drained: Vec<_> = {
-            let mut q = lock(&self.inner.queue);
-            q.closed = true;
-            q.items.drain(..).collect()
-        };
+        lock(&self.inner.queue).closed = true;
         self.inner.work_ready.notify_all();
+    }
+
+    /// The shutdown deadline passed: cancels the jobs still queued here
+    /// (memory store), logging each, and stops the running ones (a shared
+    /// store gets them back into its queue).
+    pub fn abandon(&self) {
+        self.inner.abandoned.store(true, Ordering::Relaxed);
+        let drained: Vec<_> = lock(&self.inner.queue).items.drain(..).collect();
         for job in drained {
+            warn!(job_id = %job.id, request_id = %job.request_id, "queued job not run before the shutdown deadline; cancelled");
             job.request_cancel(CancelReason::Shutdown);
             self.inner
                 .finish(&job, Outcome::Cancelled(CancelReason::Shutdown));
         }
+        self.cancel_running(CancelReason::Shutdown);
     }
 
     /// Raises the cancellation flag of every running job.
@@ -559,6 +835,13 @@ impl Jobs {
             job.request_cancel(reason);
         }
     }
+}
+
+fn shutting_down() -> Problem {
+    Problem::new(
+        Code::ShuttingDown,
+        "the service is shutting down and accepts no new jobs",
+    )
 }
 
 /// Counts a refused submission by its code.
@@ -571,25 +854,27 @@ fn count_rejection(problem: Problem) -> Problem {
 impl Inner {
     fn refusal(&self, q: &Queue) -> Option<Problem> {
         if q.closed {
-            return Some(Problem::new(
-                Code::ShuttingDown,
-                "the service is shutting down and accepts no new jobs",
-            ));
+            return Some(shutting_down());
         }
+        self.full_refusal(q.items.len())
+    }
+
+    fn closed_refusal(&self) -> Option<Problem> {
+        lock(&self.queue).closed.then(shutting_down)
+    }
+
+    fn full_refusal(&self, queued: usize) -> Option<Problem> {
+        (queued >= self.settings.queue_capacity).then(|| self.queue_full(queued))
+    }
+
+    fn queue_full(&self, queued: usize) -> Problem {
         let capacity = self.settings.queue_capacity;
-        if q.items.len() >= capacity {
-            let retry = self.retry_after(q.items.len());
-            return Some(
-                Problem::new(
-                    Code::QueueFull,
-                    format!(
-                        "the job queue is full ({capacity} jobs waiting); retry in about {retry} s"
-                    ),
-                )
-                .with_retry_after(retry),
-            );
-        }
-        None
+        let retry = self.retry_after(queued);
+        Problem::new(
+            Code::QueueFull,
+            format!("the job queue is full ({capacity} jobs waiting); retry in about {retry} s"),
+        )
+        .with_retry_after(retry)
     }
 
     /// Seconds until a queue slot is likely free: the queue ahead, spread
@@ -602,8 +887,15 @@ impl Inner {
     }
 
     /// Marks `job` finished, files it in the store and evicts results over
-    /// the budget.
+    /// the budget. A job claimed from a shared store is filed there (or
+    /// handed back to its queue when a shutdown cut it short).
     fn finish(&self, job: &Arc<Job>, outcome: Outcome) {
+        if let (Backend::Redis(store), Some(claim)) = (&self.backend, &job.claim) {
+            worker::file_shared(self, store, job, claim, &outcome);
+            job.finish(outcome);
+            lock(&self.store).remove(&job.id);
+            return;
+        }
         let label = match &outcome {
             Outcome::Succeeded(_) => "succeeded",
             Outcome::Failed(_) => "failed",
@@ -611,7 +903,7 @@ impl Inner {
         };
         metrics::counter!("meshsmooth_jobs_finished_total", "outcome" => label).increment(1);
         let result_bytes = match &outcome {
-            Outcome::Succeeded(Some(r)) => Some(r.bytes()),
+            Outcome::Succeeded(Some(r)) => Some(r.mesh_bytes + r.report_bytes),
             _ => None,
         };
         let at = job.finish(outcome);
@@ -632,8 +924,16 @@ impl Inner {
             .store((old * 7 + ms).div_ceil(8), Ordering::Relaxed);
     }
 
-    /// Blocks until a job is queued; None once the queue is closed.
-    fn next_job(&self) -> Option<Arc<Job>> {
+    /// Blocks until a job is queued (or claimed, from a shared store); None
+    /// once the queue is closed (and, in memory, empty).
+    fn next_job(&self, worker: usize) -> Option<Arc<Job>> {
+        if let Backend::Redis(store) = &self.backend {
+            let stop = || lock(&self.queue).closed;
+            let job = self.runtime.block_on(store.claim(worker, &stop))?;
+            lock(&self.store).insert(job.clone());
+            worker::keep_lease(self, store, &job);
+            return Some(job);
+        }
         let mut q = lock(&self.queue);
         loop {
             if let Some(job) = q.items.pop_front() {
@@ -652,17 +952,21 @@ impl Inner {
 
 impl Workers {
     /// Waits for the workers to finish their current job (the queue must be
-    /// closed first); true if all did within `deadline`.
-    pub fn join(self, deadline: Duration) -> bool {
+    /// closed first); true if all did within `deadline`. Workers still busy
+    /// then can be waited for again.
+    pub fn join(&mut self, deadline: Duration) -> bool {
         let start = Instant::now();
-        for handle in self.handles {
-            while !handle.is_finished() {
-                if start.elapsed() > deadline {
-                    return false;
+        while let Some(handle) = self.handles.last() {
+            if handle.is_finished() {
+                if let Some(handle) = self.handles.pop() {
+                    let _ = handle.join();
                 }
-                std::thread::sleep(Duration::from_millis(20));
+                continue;
             }
-            let _ = handle.join();
+            if start.elapsed() > deadline {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(20));
         }
         true
     }
@@ -693,6 +997,9 @@ pub(crate) mod tests {
             cancel_reason: Mutex::new(None),
             state: Mutex::new(JobState::Queued),
             changes: watch::Sender::new(0),
+            attempts: AtomicU32::new(0),
+            queue_position: None,
+            claim: None,
         })
     }
 

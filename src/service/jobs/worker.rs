@@ -1,7 +1,10 @@
 //! Worker threads: take jobs in arrival order and run the core pipeline,
-//! one job per thread at a time, each inside `catch_unwind`.
+//! one job per thread at a time, each inside `catch_unwind`. With a shared
+//! store, a worker claims the job for a lease it renews while running
+//! ([`keep_lease`]) and files the outcome there ([`file_shared`]).
 
-use super::{CancelReason, Inner, Job, JobResult, Outcome, TestHook, lock};
+use super::redis::{RedisStore, TICK, Tick};
+use super::{CancelReason, Claim, HeldResult, Inner, Job, JobResult, Outcome, TestHook, lock};
 use crate::service::error::{Code, Problem};
 use meshsmooth_core::job::{Input, JobError};
 use meshsmooth_core::{Progress, SmoothError, Stage};
@@ -20,13 +23,13 @@ pub(super) fn spawn(inner: &Arc<Inner>) -> std::io::Result<Vec<JoinHandle<()>>> 
             let inner = inner.clone();
             std::thread::Builder::new()
                 .name(format!("meshsmooth-worker-{i}"))
-                .spawn(move || work(&inner))
+                .spawn(move || work(&inner, i))
         })
         .collect()
 }
 
-fn work(inner: &Inner) {
-    while let Some(job) = inner.next_job() {
+fn work(inner: &Inner, index: usize) {
+    while let Some(job) = inner.next_job(index) {
         inner.busy.fetch_add(1, Ordering::Relaxed);
         run_job(inner, &job);
         inner.busy.fetch_sub(1, Ordering::Relaxed);
@@ -73,7 +76,7 @@ fn run_job(inner: &Inner, job: &Arc<Job>) {
             metrics::histogram!("meshsmooth_job_duration_seconds").record(run_time.as_secs_f64());
             inner.record_run_time(run_time);
             info!(seconds = run_time.as_secs_f64(), "job succeeded");
-            Outcome::Succeeded(Some(Arc::new(result)))
+            Outcome::Succeeded(Some(HeldResult::here(result)))
         }
         Ok(Err(Stop::Cancelled)) => match job.cancel_reason() {
             CancelReason::TimeLimit => {
@@ -117,6 +120,112 @@ fn run_job(inner: &Inner, job: &Arc<Job>) {
         }
     };
     inner.finish(job, outcome);
+}
+
+/// Renews the lease of `job`, claimed from `store`, until it is finished:
+/// publishes its progress, raises its cancellation flag when a client asked
+/// through any replica, and stops it when another worker took it over.
+pub(super) fn keep_lease(inner: &Inner, store: &Arc<RedisStore>, job: &Arc<Job>) {
+    let (store, job) = (store.clone(), job.clone());
+    inner.runtime.spawn(async move {
+        let Some(claim) = &job.claim else {
+            return;
+        };
+        let mut tick = tokio::time::interval(TICK);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        while !job.is_finished() {
+            tick.tick().await;
+            match store.tick(&job, claim).await {
+                Ok(Tick::Held { cancel }) => {
+                    if cancel && !job.cancel.load(Ordering::Relaxed) {
+                        job.request_cancel(CancelReason::Client);
+                    }
+                }
+                Ok(Tick::Done) => return,
+                Ok(Tick::Lost) => {
+                    warn!(job_id = %job.id, "lease lost: another worker runs the job now; stopping");
+                    claim.lost.store(true, Ordering::Relaxed);
+                    job.request_cancel(CancelReason::Shutdown);
+                    return;
+                }
+                Err(e) => {
+                    warn!(job_id = %job.id, error = %e, "cannot renew the lease in Redis");
+                }
+            }
+        }
+    });
+}
+
+/// Files the outcome of a job claimed from `store`, retrying while Redis is
+/// away (the lease is renewed meanwhile). A run cut short by the shutdown
+/// goes back to the queue instead. Gives up once the shutdown deadline
+/// passed: the lease then lapses and another replica runs the job again.
+pub(super) fn file_shared(
+    inner: &Inner,
+    store: &RedisStore,
+    job: &Job,
+    claim: &Claim,
+    outcome: &Outcome,
+) {
+    let hand_back = matches!(outcome, Outcome::Cancelled(CancelReason::Shutdown));
+    let mut wait = Duration::from_millis(100);
+    loop {
+        if claim.lost.load(Ordering::Relaxed) {
+            return;
+        }
+        let filed = if hand_back {
+            inner
+                .runtime
+                .block_on(store.hand_back(job, claim))
+                .map(|back| {
+                    if back {
+                        metrics::counter!("meshsmooth_jobs_handed_back_total").increment(1);
+                        info!(job_id = %job.id, "job handed back to the queue");
+                    }
+                })
+        } else {
+            let settings = &inner.settings;
+            inner
+                .runtime
+                .block_on(store.finish(
+                    job,
+                    claim,
+                    outcome,
+                    settings.result_memory,
+                    settings.result_ttl,
+                ))
+                .map(|evicted| {
+                    let Some(evicted) = evicted else {
+                        warn!(job_id = %job.id, "lease lost before the outcome was filed; dropped");
+                        return;
+                    };
+                    let label = match outcome {
+                        Outcome::Succeeded(_) => "succeeded",
+                        Outcome::Failed(_) => "failed",
+                        Outcome::Cancelled(_) => "cancelled",
+                    };
+                    metrics::counter!("meshsmooth_jobs_finished_total", "outcome" => label)
+                        .increment(1);
+                    if evicted > 0 {
+                        metrics::counter!("meshsmooth_results_evicted_total", "reason" => "memory")
+                            .increment(evicted as u64);
+                    }
+                })
+        };
+        match filed {
+            Ok(()) => return,
+            Err(e) => {
+                metrics::counter!("meshsmooth_store_errors_total").increment(1);
+                if inner.abandoned.load(Ordering::Relaxed) {
+                    warn!(job_id = %job.id, error = %e, "cannot file the job in Redis before the shutdown; its lease will lapse and another replica runs it");
+                    return;
+                }
+                warn!(job_id = %job.id, error = %e, "cannot file the job in Redis; retrying");
+                std::thread::sleep(wait);
+                wait = (wait * 2).min(Duration::from_secs(2));
+            }
+        }
+    }
 }
 
 /// Runs the job layer and encodes the report.
