@@ -3,7 +3,7 @@
 
 use super::curvature::{Curvatures, vertex_curvatures};
 use super::neighbourhood::HoodSource;
-use super::project::{FitStats, apply, fit_pass};
+use super::project::{FitPass, FitStats, apply, fit_pass};
 use crate::control::{Cancelled, check};
 use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::FitModel;
@@ -52,14 +52,16 @@ pub fn initial_passes(
             mesh,
             topo,
             positions,
-            hoods,
-            movable,
-            FitModel::Quadric,
-            min_cos,
+            FitPass {
+                hoods,
+                movable,
+                model: FitModel::Quadric,
+                min_cos,
+                refit: None,
+                momentum: None,
+                curvature: first,
+            },
             &mut moves,
-            None,
-            None,
-            first,
         ));
         apply(positions, &moves);
         on_pass(pass + 1);

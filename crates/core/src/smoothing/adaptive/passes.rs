@@ -7,7 +7,7 @@ use crate::fit::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
 use crate::smoothing::neighbourhood::{HoodSource, Neighbourhoods};
 use crate::smoothing::project::{
-    FitStats, Momentum, Refit, UNFITTED_DRIFT, apply, fit_pass, step_limits, weighted_pass,
+    FitPass, FitStats, Momentum, Refit, UNFITTED_DRIFT, apply, fit_pass, step_limits, weighted_pass,
 };
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -193,14 +193,16 @@ pub fn smooth_passes(
                         mesh,
                         topo,
                         positions,
-                        HoodSource::Stored(hoods),
-                        movable,
-                        model,
-                        min_cos,
+                        FitPass {
+                            hoods: HoodSource::Stored(hoods),
+                            movable,
+                            model,
+                            min_cos,
+                            refit,
+                            momentum,
+                            curvature: None,
+                        },
                         &mut moves,
-                        refit,
-                        momentum,
-                        None,
                     )
                 }
             };
