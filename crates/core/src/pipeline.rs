@@ -360,8 +360,7 @@ fn stage_curvature(
 /// Hands the allocator's free memory back to the operating system (glibc
 /// keeps what the worker threads freed in their arenas): before the
 /// adaptive passes, where a run's memory peaks, the label stage's freed
-/// scratch would otherwise count in the peak. 13-17 bytes a vertex on the
-/// benchmark spheres.
+/// scratch would otherwise count in the peak.
 fn release_free_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {

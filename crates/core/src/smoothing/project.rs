@@ -388,11 +388,9 @@ impl ChunkPass<'_> {
 /// moves `out` holds when the pass starts ([`Momentum`]): the fit repeated with its
 /// frame coordinates and point weights kept, at the cost of one weighted
 /// sum, written as each vertex's move to `out`, its length added to the
-/// vertex's `drift` ([`UNFITTED_DRIFT`]). (Keeping the fit's normal
-/// as well would save summing face areas, and changes no figure of
-/// `examples/accuracy.rs`, but on the real brain meshes it leaves six
-/// times as many inverted faces and the neuron gains 30% in volume
-/// instead of 12%: the current normal keeps the passes stable.)
+/// vertex's `drift` ([`UNFITTED_DRIFT`]). The move is along the current
+/// normal, not the fit's: on poorly fitted real meshes the fit's normal
+/// lets the passes fold and swell the surface (`docs/tuning.md`).
 /// Vertices whose weights are all zero (fixed, immovable) stay; so does a
 /// vertex whose move would exceed its `limits` entry ([`step_limits`]),
 /// counted as clamped: reused weights no longer describe a surface that
