@@ -16,17 +16,14 @@
 //!   the default Wang-Yu parameters);
 //! - `MESHSMOOTH_BENCH_MESH`: an extra OBJ file to include.
 
-use http_body_util::{BodyExt, Full};
-use hyper::Request;
+#[path = "../tests/service/support.rs"]
+mod support;
+
 use hyper::body::Bytes;
-use hyper_util::rt::TokioIo;
-use std::collections::HashMap;
-use std::io::{BufRead, BufReader};
-use std::net::SocketAddr;
 use std::process::{Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::net::TcpStream;
+use support::{Client, Req, Server};
 
 fn env_list(name: &str, default: &str) -> Vec<usize> {
     std::env::var(name)
@@ -38,61 +35,8 @@ fn env_list(name: &str, default: &str) -> Vec<usize> {
 
 /// Voxel-sphere boundary quads as OBJ text, and its vertex count.
 fn voxel_sphere(radius: f64) -> (String, usize) {
-    let n = radius.ceil() as i64 + 1;
-    let inside = |i: i64, j: i64, k: i64| {
-        let c = [i as f64 + 0.5, j as f64 + 0.5, k as f64 + 0.5];
-        c[0] * c[0] + c[1] * c[1] + c[2] * c[2] <= radius * radius
-    };
-    let mut ids: HashMap<[i64; 3], usize> = HashMap::new();
-    let mut vertices = Vec::new();
-    let mut faces = Vec::new();
-    for i in -n..n {
-        for j in -n..n {
-            for k in -n..n {
-                if !inside(i, j, k) {
-                    continue;
-                }
-                for axis in 0..3 {
-                    for sign in [1i64, -1] {
-                        let mut q = [i, j, k];
-                        q[axis] += sign;
-                        if inside(q[0], q[1], q[2]) {
-                            continue;
-                        }
-                        let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
-                        let mut base = [i, j, k];
-                        if sign > 0 {
-                            base[axis] += 1;
-                        }
-                        let mut p1 = base;
-                        p1[b] += 1;
-                        let mut p2 = p1;
-                        p2[c] += 1;
-                        let mut p3 = base;
-                        p3[c] += 1;
-                        let mut quad = [base, p1, p2, p3].map(|p| {
-                            *ids.entry(p).or_insert_with(|| {
-                                vertices.push(p);
-                                vertices.len()
-                            })
-                        });
-                        if sign < 0 {
-                            quad.reverse();
-                        }
-                        faces.push(quad);
-                    }
-                }
-            }
-        }
-    }
-    let mut text = String::with_capacity(vertices.len() * 40 + faces.len() * 40);
-    for v in &vertices {
-        text.push_str(&format!("v {} {} {}\n", v[0], v[1], v[2]));
-    }
-    for f in &faces {
-        text.push_str(&format!("f {} {} {} {}\n", f[0], f[1], f[2], f[3]));
-    }
-    (text, vertices.len())
+    let (text, vertices, _) = support::voxel_sphere_obj(radius);
+    (text, vertices)
 }
 
 /// The voxel sphere whose vertex count is closest to `target` (the count
@@ -116,10 +60,13 @@ struct Outcome {
     run_seconds: f64,
 }
 
-async fn smooth_once(addr: SocketAddr, path: &str, body: Bytes) -> Outcome {
+async fn smooth_once(client: Client, path: &str, body: Bytes) -> Outcome {
     let start = Instant::now();
     loop {
-        let (status, headers, _) = send(addr, "POST", path, Some(body.clone())).await;
+        let r = client
+            .send(Req::raw(path, "model/obj", body.to_vec()))
+            .await;
+        let (status, headers) = (r.status.as_u16(), r.headers);
         if status == 503 {
             let wait = headers
                 .get("retry-after")
@@ -131,54 +78,14 @@ async fn smooth_once(addr: SocketAddr, path: &str, body: Bytes) -> Outcome {
         assert_eq!(status, 200, "smoothing failed");
         let latency = start.elapsed();
         let id = headers.get("x-job-id").cloned().unwrap_or_default();
-        let (_, _, job) = send(addr, "GET", &format!("/v1/jobs/{id}"), None).await;
-        let job: serde_json::Value = serde_json::from_slice(&job).unwrap_or_default();
+        let job = client.get(&format!("/v1/jobs/{id}")).await;
+        let job: serde_json::Value = serde_json::from_slice(&job.body).unwrap_or_default();
         let run_seconds = job["run_seconds"].as_f64().unwrap_or(f64::NAN);
         return Outcome {
             latency,
             run_seconds,
         };
     }
-}
-
-async fn send(
-    addr: SocketAddr,
-    method: &str,
-    path: &str,
-    body: Option<Bytes>,
-) -> (u16, HashMap<String, String>, Bytes) {
-    let stream = TcpStream::connect(addr).await.expect("connect");
-    let _ = stream.set_nodelay(true);
-    let (mut sender, conn) = hyper::client::conn::http1::handshake(TokioIo::new(stream))
-        .await
-        .expect("handshake");
-    tokio::spawn(conn);
-    let req = Request::builder()
-        .method(method)
-        .uri(path)
-        .header("host", addr.to_string())
-        .header("content-type", "model/obj")
-        .body(Full::new(body.unwrap_or_default()))
-        .expect("request");
-    let response = sender.send_request(req).await.expect("send");
-    let status = response.status().as_u16();
-    let headers = response
-        .headers()
-        .iter()
-        .map(|(k, v)| {
-            (
-                k.as_str().to_owned(),
-                v.to_str().unwrap_or_default().to_owned(),
-            )
-        })
-        .collect();
-    let body = response
-        .into_body()
-        .collect()
-        .await
-        .expect("body")
-        .to_bytes();
-    (status, headers, body)
 }
 
 fn percentile(sorted: &[f64], p: f64) -> f64 {
@@ -265,22 +172,9 @@ fn main() {
         meshes.push((extra, vertices, Bytes::from(text)));
     }
 
-    let mut server = Command::new(bin)
-        .args(["serve", "--listen", "127.0.0.1:0", "--queue-capacity", "64"])
-        .args(["--log", "warn"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start the server");
-    let mut line = String::new();
-    BufReader::new(server.stdout.take().expect("stdout"))
-        .read_line(&mut line)
-        .expect("listening line");
-    let addr: SocketAddr = line
-        .trim()
-        .strip_prefix("meshsmooth listening on http://")
-        .and_then(|a| a.parse().ok())
-        .expect("bound address");
+    let server = Server::start(&["--queue-capacity", "64", "--log", "warn"]);
+    let client = server.client();
+    let addr = client.addr;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
@@ -316,7 +210,7 @@ fn main() {
                             let mut mine = Vec::new();
                             while next.fetch_add(1, std::sync::atomic::Ordering::Relaxed) < requests
                             {
-                                mine.push(smooth_once(addr, &path, body.clone()).await);
+                                mine.push(smooth_once(client, &path, body.clone()).await);
                             }
                             mine
                         })
@@ -367,7 +261,7 @@ fn main() {
         let mut run = Vec::new();
         for _ in 0..OVERHEAD_ROUNDS {
             cli.push(cli_seconds(bin, &file, &query));
-            let o = runtime.block_on(smooth_once(addr, &path, body.clone()));
+            let o = runtime.block_on(smooth_once(client, &path, body.clone()));
             e2e.push(o.latency.as_secs_f64());
             run.push(o.run_seconds);
         }
@@ -378,7 +272,6 @@ fn main() {
             100.0 * (e2e - cli) / cli
         );
     }
-    let _ = server.kill();
-    let _ = server.wait();
+    drop(server);
     let _ = std::fs::remove_dir_all(&dir);
 }
