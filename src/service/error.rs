@@ -13,35 +13,13 @@ use meshsmooth_core::{ParamError, SmoothError};
 use serde::Serialize;
 use utoipa::ToSchema;
 
-/// Declares [`Code`]: the core's codes plus the service's own, each with
-/// its snake_case text.
-macro_rules! service_codes {
-    ($($(#[$doc:meta])* $variant:ident = $text:literal,)*) => {
-        /// The stable code of an error answer.
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-        pub enum Code {
-            /// An error of the mesh core (reading, parameters, smoothing).
-            Core(ErrorCode),
-            $($(#[$doc])* $variant,)*
-        }
-
-        impl Code {
-            /// The service's own codes, in declaration order.
-            #[cfg(test)]
-            pub const SERVICE: &[Code] = &[$(Code::$variant,)*];
-
-            /// The snake_case text, e.g. `queue_full`.
-            pub fn as_str(self) -> &'static str {
-                match self {
-                    Code::Core(code) => code.as_str(),
-                    $(Code::$variant => $text,)*
-                }
-            }
-        }
+meshsmooth_core::error_code_enum! {
+    /// The stable code of an error answer: the core's codes and the
+    /// service's own.
+    Code {
+        /// An error of the mesh core (reading, parameters, smoothing).
+        Core(ErrorCode)
     };
-}
-
-service_codes! {
     /// The body is empty.
     EmptyBody = "empty_body",
     /// The multipart body is malformed.
@@ -156,18 +134,6 @@ impl Code {
 impl From<ErrorCode> for Code {
     fn from(code: ErrorCode) -> Self {
         Code::Core(code)
-    }
-}
-
-impl std::fmt::Display for Code {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl PartialEq<&str> for Code {
-    fn eq(&self, other: &&str) -> bool {
-        self.as_str() == *other
     }
 }
 
@@ -353,9 +319,9 @@ mod tests {
     #[test]
     fn statuses_follow_the_table() {
         let status = |code: &str| {
-            let all = ErrorCode::ALL.iter().map(|&c| Code::Core(c));
+            let all = ErrorCode::OWN.iter().map(|&c| Code::Core(c));
             let code = all
-                .chain(Code::SERVICE.iter().copied())
+                .chain(Code::OWN.iter().copied())
                 .find(|c| c.as_str() == code)
                 .unwrap_or_else(|| panic!("no code {code}"));
             code.status()
@@ -378,8 +344,8 @@ mod tests {
     #[test]
     fn codes_are_distinct() {
         let mut seen = std::collections::HashSet::new();
-        let core = ErrorCode::ALL.iter().map(|&c| Code::Core(c));
-        for code in core.chain(Code::SERVICE.iter().copied()) {
+        let core = ErrorCode::OWN.iter().map(|&c| Code::Core(c));
+        for code in core.chain(Code::OWN.iter().copied()) {
             assert!(seen.insert(code.as_str()), "{code} twice");
         }
     }

@@ -321,20 +321,34 @@ fn restore_after_passes(run: &Run, positions: &mut [DVec3]) -> (f64, Option<f64>
     if !run.params.preserve_volume || topo.num_boundary_edges() != 0 {
         return (0.0, None);
     }
+    let offset = restore_input_volume(run, positions, MAX_VOLUME_OFFSET, |_| true);
     let target = mesh.signed_volume();
-    let max_offset = MAX_VOLUME_OFFSET * mean_edge_length(mesh, positions);
-    let offset = restore_volume(
-        mesh,
-        topo,
+    let change = (signed_volume(mesh, positions) - target) / target.abs();
+    let refused = offset == 0.0 && change.abs() > VOLUME_RESTORED;
+    (offset, refused.then_some(change))
+}
+
+/// Restores the input's enclosed volume at `positions` by an offset along
+/// the normals of at most `max_fraction` of the mean edge length, kept
+/// only if `accept` takes the moved positions ([`restore_volume`]): the
+/// offset applied.
+fn restore_input_volume(
+    run: &Run,
+    positions: &mut [DVec3],
+    max_fraction: f64,
+    accept: impl Fn(&[DVec3]) -> bool,
+) -> f64 {
+    let max_offset = max_fraction * mean_edge_length(run.mesh, positions);
+    let target = run.mesh.signed_volume();
+    restore_volume(
+        run.mesh,
+        run.topo,
         positions,
         run.movable,
         target,
         max_offset,
-        |_| true,
-    );
-    let change = (signed_volume(mesh, positions) - target) / target.abs();
-    let refused = offset == 0.0 && change.abs() > VOLUME_RESTORED;
-    (offset, refused.then_some(change))
+        accept,
+    )
 }
 
 /// The curvature a stage reports (and the run's per-vertex result): from
@@ -613,17 +627,10 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
         && summary.volume_offset != 0.0
     {
         let defects = defect_count(mesh, positions, input);
-        let max_offset = MAX_VOLUME_REOFFSET * mean_edge_length(mesh, positions);
-        let target = mesh.signed_volume();
-        summary.volume_offset += restore_volume(
-            mesh,
-            topo,
-            positions,
-            run.movable,
-            target,
-            max_offset,
-            |moved| defect_count(mesh, moved, input) <= defects,
-        );
+        summary.volume_offset +=
+            restore_input_volume(run, positions, MAX_VOLUME_REOFFSET, |moved| {
+                defect_count(mesh, moved, input) <= defects
+            });
     }
     run.progress.update(Stage::Quality, 1.0);
 }
