@@ -279,6 +279,7 @@ fn gather_and_fit(
 
 /// Fits to points already in local coordinates; `s` is the neighbourhood
 /// scale (root mean square distance).
+#[cfg(test)]
 pub fn fit_local(local: &[DVec3], s: f64) -> QuadricFit {
     fit_points(local, s, FitModel::Quadric, None)
 }
