@@ -138,20 +138,9 @@ fn cli_seconds(bin: &str, input: &std::path::Path, query: &str) -> f64 {
 /// Alternating CLI/server rounds in the overhead table.
 const OVERHEAD_ROUNDS: usize = 3;
 
-fn main() {
-    let bin = env!("CARGO_BIN_EXE_meshsmooth");
-    let sizes = env_list("MESHSMOOTH_BENCH_SIZES", "10000,100000,228000");
-    let clients = env_list("MESHSMOOTH_BENCH_CLIENTS", "1,4,16");
-    let fixed_requests = env_list("MESHSMOOTH_BENCH_REQUESTS", "").first().copied();
-    let query = std::env::var("MESHSMOOTH_BENCH_QUERY").unwrap_or_default();
-    let path = if query.is_empty() {
-        "/v1/smooth".to_owned()
-    } else {
-        format!("/v1/smooth?{query}")
-    };
-    let dir = std::env::temp_dir().join(format!("meshsmooth-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-
+/// The meshes to upload: a voxel sphere near each vertex count of `sizes`,
+/// and `MESHSMOOTH_BENCH_MESH` when set: (name, vertices, OBJ bytes).
+fn bench_meshes(sizes: &[usize]) -> Vec<(String, usize, Bytes)> {
     let mut meshes: Vec<(String, usize, Bytes)> = sizes
         .iter()
         .map(|&target| {
@@ -171,6 +160,65 @@ fn main() {
             .count();
         meshes.push((extra, vertices, Bytes::from(text)));
     }
+    meshes
+}
+
+/// Prints the server's overhead per request against the CLI's time on
+/// each of `meshes` (name, vertices, OBJ bytes, its file).
+fn overhead_table(
+    runtime: &tokio::runtime::Runtime,
+    client: Client,
+    bin: &str,
+    path: &str,
+    query: &str,
+    meshes: Vec<(String, usize, Bytes, std::path::PathBuf)>,
+) {
+    println!();
+    println!("## Server overhead per request vs `meshsmooth smooth` (1 client)");
+    println!();
+    println!(
+        "CLI and server runs alternate ({OVERHEAD_ROUNDS} rounds each) so that load from \
+         elsewhere on the machine hits both alike; medians."
+    );
+    println!();
+    println!(
+        "| mesh | vertices | CLI s | server end-to-end s | overhead s | overhead % | server pipeline s |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|---:|");
+    for (name, vertices, body, file) in meshes {
+        let mut cli = Vec::new();
+        let mut e2e = Vec::new();
+        let mut run = Vec::new();
+        for _ in 0..OVERHEAD_ROUNDS {
+            cli.push(cli_seconds(bin, &file, query));
+            let o = runtime.block_on(smooth_once(client, path, body.clone()));
+            e2e.push(o.latency.as_secs_f64());
+            run.push(o.run_seconds);
+        }
+        let (cli, e2e, run) = (median(cli), median(e2e), median(run));
+        println!(
+            "| {name} | {vertices} | {cli:.3} | {e2e:.3} | {:.3} | {:.1} | {run:.3} |",
+            e2e - cli,
+            100.0 * (e2e - cli) / cli
+        );
+    }
+}
+
+fn main() {
+    let bin = env!("CARGO_BIN_EXE_meshsmooth");
+    let sizes = env_list("MESHSMOOTH_BENCH_SIZES", "10000,100000,228000");
+    let clients = env_list("MESHSMOOTH_BENCH_CLIENTS", "1,4,16");
+    let fixed_requests = env_list("MESHSMOOTH_BENCH_REQUESTS", "").first().copied();
+    let query = std::env::var("MESHSMOOTH_BENCH_QUERY").unwrap_or_default();
+    let path = if query.is_empty() {
+        "/v1/smooth".to_owned()
+    } else {
+        format!("/v1/smooth?{query}")
+    };
+    let dir = std::env::temp_dir().join(format!("meshsmooth-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+
+    let meshes = bench_meshes(&sizes);
 
     let server = Server::start(&["--queue-capacity", "64", "--log", "warn"]);
     let client = server.client();
@@ -243,35 +291,7 @@ fn main() {
         }
         single_client.push((name.clone(), *vertices, body.clone(), file));
     }
-    println!();
-    println!("## Server overhead per request vs `meshsmooth smooth` (1 client)");
-    println!();
-    println!(
-        "CLI and server runs alternate ({OVERHEAD_ROUNDS} rounds each) so that load from \
-         elsewhere on the machine hits both alike; medians."
-    );
-    println!();
-    println!(
-        "| mesh | vertices | CLI s | server end-to-end s | overhead s | overhead % | server pipeline s |"
-    );
-    println!("|---|---:|---:|---:|---:|---:|---:|");
-    for (name, vertices, body, file) in single_client {
-        let mut cli = Vec::new();
-        let mut e2e = Vec::new();
-        let mut run = Vec::new();
-        for _ in 0..OVERHEAD_ROUNDS {
-            cli.push(cli_seconds(bin, &file, &query));
-            let o = runtime.block_on(smooth_once(client, &path, body.clone()));
-            e2e.push(o.latency.as_secs_f64());
-            run.push(o.run_seconds);
-        }
-        let (cli, e2e, run) = (median(cli), median(e2e), median(run));
-        println!(
-            "| {name} | {vertices} | {cli:.3} | {e2e:.3} | {:.3} | {:.1} | {run:.3} |",
-            e2e - cli,
-            100.0 * (e2e - cli) / cli
-        );
-    }
+    overhead_table(&runtime, client, bin, &path, &query, single_client);
     drop(server);
     let _ = std::fs::remove_dir_all(&dir);
 }
