@@ -17,7 +17,7 @@ use crate::report::{
 use crate::report::{mean_curvature_variation, measure_stage, mesh_statistics};
 use crate::smoothing::adaptive::{GrowthRule, PassSettings, adaptive_passes, grow_neighbourhoods};
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
-use crate::smoothing::initial::initial_passes;
+use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
 use crate::smoothing::volume::restore_volume;
@@ -256,20 +256,17 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 /// pass's fits.
 fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), Cancelled> {
     let passes = run.params.initial_passes;
-    let (fits, input_curvature) = initial_passes(
-        run.mesh,
-        run.topo,
-        positions,
-        run.movable,
-        run.params.max_fit_points as usize,
-        run.params.min_normal_cos(),
+    let plan = InitialPlan {
+        movable: run.movable,
+        max_points: run.params.max_fit_points as usize,
+        min_cos: run.params.min_normal_cos(),
         passes,
-        run.cancel,
-        |p| {
+    };
+    let (fits, input_curvature) =
+        initial_passes(run.mesh, run.topo, positions, plan, run.cancel, |p| {
             run.progress
                 .update(Stage::Initial, p as f64 / passes.max(1) as f64)
-        },
-    )?;
+        })?;
     Ok((fits, mean_curvature_variation(run.topo, &input_curvature)))
 }
 

@@ -250,7 +250,7 @@ pub fn stale_vertices(
 mod tests {
     use super::*;
     use crate::shapes;
-    use crate::smoothing::initial::initial_passes;
+    use crate::smoothing::initial::{InitialPlan, initial_passes};
     use crate::smoothing::neighbourhood::push_thinned;
 
     /// `mesh`'s positions after the initial passes, as in the pipeline: the
@@ -259,8 +259,13 @@ mod tests {
         let mut start = mesh.positions().to_vec();
         let movable = vec![true; mesh.num_vertices()];
         let never = AtomicBool::new(false);
-        initial_passes(mesh, topo, &mut start, &movable, 56, 0.0, 3, &never, |_| {})
-            .expect("not cancelled");
+        let plan = InitialPlan {
+            movable: &movable,
+            max_points: 56,
+            min_cos: 0.0,
+            passes: 3,
+        };
+        initial_passes(mesh, topo, &mut start, plan, &never, |_| {}).expect("not cancelled");
         start
     }
 
