@@ -382,6 +382,23 @@ impl ChunkPass<'_> {
     }
 }
 
+/// What a [`weighted_pass`] reuses: the neighbourhoods the fits were made
+/// over, their linear weights, the step limits ([`step_limits`]), which
+/// vertices move, and their momentum.
+#[derive(Clone, Copy)]
+pub struct Reuse<'a> {
+    /// The neighbourhoods of the kept fits.
+    pub hoods: &'a Neighbourhoods,
+    /// Each vertex's kept linear weights.
+    pub weights: &'a NeighbourWeights,
+    /// Each vertex's step limit.
+    pub limits: &'a [f32],
+    /// Which vertices may move.
+    pub movable: &'a [bool],
+    /// Moves with momentum ([`Momentum`]).
+    pub momentum: Option<Momentum<'a>>,
+}
+
 /// One Jacobi pass that moves each vertex along its current normal by the
 /// height its last fit's linear `weights` give for the current heights of
 /// its neighbours ([`fit_neighbours_weighted`]), with `momentum` from the
@@ -397,19 +414,21 @@ impl ChunkPass<'_> {
 /// has moved that far, and a bound taken from the current edges could grow
 /// with them, pass after pass. Counts no fits; returns the displacement
 /// statistics.
-#[allow(clippy::too_many_arguments)]
 pub fn weighted_pass(
     mesh: &Mesh,
     topo: &Topology,
     positions: &[DVec3],
-    hoods: &Neighbourhoods,
-    weights: &NeighbourWeights,
-    limits: &[f32],
+    reuse: Reuse,
     drift: &mut [f32],
-    movable: &[bool],
     out: &mut [Vec3],
-    momentum: Option<Momentum>,
 ) -> FitStats {
+    let Reuse {
+        hoods,
+        weights,
+        limits,
+        movable,
+        momentum,
+    } = reuse;
     let areas = face_vector_areas_f32(mesh, positions);
     out.par_chunks_mut(CHUNK)
         .zip(drift.par_chunks_mut(CHUNK))
@@ -582,9 +601,14 @@ mod tests {
             let mut p = mesh.positions().to_vec();
             p[target] += lift * edge * normal;
             let mut drift = vec![0.25f32; mesh.num_vertices()];
-            let stats = weighted_pass(
-                &mesh, &topo, &p, &hoods, &weights, &limits, &mut drift, &movable, &mut out, None,
-            );
+            let reuse = Reuse {
+                hoods: &hoods,
+                weights: &weights,
+                limits: &limits,
+                movable: &movable,
+                momentum: None,
+            };
+            let stats = weighted_pass(&mesh, &topo, &p, reuse, &mut drift, &mut out);
             let moved = f64::from(out[centre].length());
             if moves {
                 assert!(moved > 0.3 * edge, "followed by {moved}");

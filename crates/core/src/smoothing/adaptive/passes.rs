@@ -7,7 +7,8 @@ use crate::fit::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
 use crate::smoothing::neighbourhood::{HoodSource, Neighbourhoods};
 use crate::smoothing::project::{
-    FitPass, FitStats, Momentum, Refit, UNFITTED_DRIFT, apply, fit_pass, step_limits, weighted_pass,
+    FitPass, FitStats, Momentum, Refit, Reuse, UNFITTED_DRIFT, apply, fit_pass, step_limits,
+    weighted_pass,
 };
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -156,10 +157,16 @@ pub fn smooth_passes(
         });
         let s =
             match kept.as_mut() {
-                Some((weights, drift, limits)) if !refits(pass) => weighted_pass(
-                    mesh, topo, positions, hoods, weights, limits, drift, movable, &mut moves,
-                    momentum,
-                ),
+                Some((weights, drift, limits)) if !refits(pass) => {
+                    let reuse = Reuse {
+                        hoods,
+                        weights,
+                        limits,
+                        movable,
+                        momentum,
+                    };
+                    weighted_pass(mesh, topo, positions, reuse, drift, &mut moves)
+                }
                 kept => {
                     // Before the first fit every vertex is stale.
                     let stale =
