@@ -13,34 +13,13 @@ use meshsmooth_core::{ParamError, SmoothError};
 use serde::Serialize;
 use utoipa::ToSchema;
 
-/// Declares [`Code`]: the core's codes plus the service's own, each with
-/// its snake_case text.
-macro_rules! service_codes {
-    ($($(#[$doc:meta])* $variant:ident = $text:literal,)*) => {
-        /// The stable code of an error answer.
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-        pub enum Code {
-            /// An error of the mesh core (reading, parameters, smoothing).
-            Core(ErrorCode),
-            $($(#[$doc])* $variant,)*
-        }
-
-        impl Code {
-            /// The service's own codes, in declaration order.
-            pub const SERVICE: &[Code] = &[$(Code::$variant,)*];
-
-            /// The snake_case text, e.g. `queue_full`.
-            pub fn as_str(self) -> &'static str {
-                match self {
-                    Code::Core(code) => code.as_str(),
-                    $(Code::$variant => $text,)*
-                }
-            }
-        }
+meshsmooth_core::error_code_enum! {
+    /// The stable code of an error answer: the core's codes and the
+    /// service's own.
+    Code {
+        /// An error of the mesh core (reading, parameters, smoothing).
+        Core(ErrorCode)
     };
-}
-
-service_codes! {
     /// The body is empty.
     EmptyBody = "empty_body",
     /// The multipart body is malformed.
@@ -169,8 +148,8 @@ impl Code {
     /// The code whose text is `text` (e.g. one read back from the shared
     /// job store), if any.
     pub fn parse(text: &str) -> Option<Code> {
-        let core = ErrorCode::ALL.iter().map(|&c| Code::Core(c));
-        core.chain(Code::SERVICE.iter().copied())
+        let core = ErrorCode::OWN.iter().map(|&c| Code::Core(c));
+        core.chain(Code::OWN.iter().copied())
             .find(|code| code.as_str() == text)
     }
 }
@@ -178,18 +157,6 @@ impl Code {
 impl From<ErrorCode> for Code {
     fn from(code: ErrorCode) -> Self {
         Code::Core(code)
-    }
-}
-
-impl std::fmt::Display for Code {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl PartialEq<&str> for Code {
-    fn eq(&self, other: &&str) -> bool {
-        self.as_str() == *other
     }
 }
 
@@ -401,8 +368,8 @@ mod tests {
 
     #[test]
     fn every_code_parses_back_from_its_text() {
-        let core = ErrorCode::ALL.iter().map(|&c| Code::Core(c));
-        for code in core.chain(Code::SERVICE.iter().copied()) {
+        let core = ErrorCode::OWN.iter().map(|&c| Code::Core(c));
+        for code in core.chain(Code::OWN.iter().copied()) {
             assert_eq!(Code::parse(code.as_str()), Some(code));
         }
         assert_eq!(Code::parse("no_such_code"), None);
@@ -411,8 +378,8 @@ mod tests {
     #[test]
     fn codes_are_distinct() {
         let mut seen = std::collections::HashSet::new();
-        let core = ErrorCode::ALL.iter().map(|&c| Code::Core(c));
-        for code in core.chain(Code::SERVICE.iter().copied()) {
+        let core = ErrorCode::OWN.iter().map(|&c| Code::Core(c));
+        for code in core.chain(Code::OWN.iter().copied()) {
             assert!(seen.insert(code.as_str()), "{code} twice");
         }
     }

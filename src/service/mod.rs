@@ -182,32 +182,7 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
     };
 
     let connections = GracefulShutdown::new();
-    let mut signal = pin!(shutdown_signal());
-    loop {
-        tokio::select! {
-            accepted = listener.accept() => match accepted {
-                Ok((stream, _)) => {
-                    let _ = stream.set_nodelay(true);
-                    let service = TowerToHyperService::new(router.clone());
-                    let connection = hyper::server::conn::http1::Builder::new()
-                        .timer(TokioTimer::new())
-                        .header_read_timeout(args.header_timeout)
-                        .serve_connection(TokioIo::new(stream), service);
-                    let connection = connections.watch(connection);
-                    tokio::spawn(async move {
-                        if let Err(e) = connection.await {
-                            tracing::debug!(error = %e, "connection ended with an error");
-                        }
-                    });
-                }
-                Err(e) => {
-                    warn!(error = %e, "accept failed");
-                    tokio::time::sleep(Duration::from_millis(100)).await;
-                }
-            },
-            () = &mut signal => break,
-        }
-    }
+    accept_until_shutdown(&listener, &router, args.header_timeout, &connections).await;
 
     // Stop accepting: no new connections, no new jobs. Until the shutdown
     // timeout, running jobs finish, and with the memory store the queued
@@ -245,6 +220,42 @@ async fn run(args: ServeArgs) -> anyhow::Result<()> {
 /// After the shutdown deadline: how long stopped jobs get to be filed (or
 /// handed back) before the process exits anyway.
 const ABANDON_GRACE: Duration = Duration::from_secs(5);
+
+/// Serves each connection `listener` accepts with `router` (watched by
+/// `connections` for a graceful shutdown) until SIGINT or SIGTERM.
+async fn accept_until_shutdown(
+    listener: &TcpListener,
+    router: &axum::Router,
+    header_timeout: Duration,
+    connections: &GracefulShutdown,
+) {
+    let mut signal = pin!(shutdown_signal());
+    loop {
+        tokio::select! {
+            accepted = listener.accept() => match accepted {
+                Ok((stream, _)) => {
+                    let _ = stream.set_nodelay(true);
+                    let service = TowerToHyperService::new(router.clone());
+                    let connection = hyper::server::conn::http1::Builder::new()
+                        .timer(TokioTimer::new())
+                        .header_read_timeout(header_timeout)
+                        .serve_connection(TokioIo::new(stream), service);
+                    let connection = connections.watch(connection);
+                    tokio::spawn(async move {
+                        if let Err(e) = connection.await {
+                            tracing::debug!(error = %e, "connection ended with an error");
+                        }
+                    });
+                }
+                Err(e) => {
+                    warn!(error = %e, "accept failed");
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                }
+            },
+            () = &mut signal => break,
+        }
+    }
+}
 
 /// Resolves on SIGINT or SIGTERM.
 async fn shutdown_signal() {

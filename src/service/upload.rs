@@ -127,21 +127,7 @@ pub async fn read_upload(req: Request<Body>, config: &UploadConfig) -> Result<Up
             )
         })??;
 
-    let params = match (raw.params, query_params) {
-        (Some(_), Some(_)) => {
-            return Err(Problem::new(
-                Code::InvalidParameter,
-                "parameters were given both in the `params` part and in the query string; use one",
-            ));
-        }
-        (Some(part), None) => {
-            let p = params_from_json(&part, "the `params` part")?;
-            p.validate()?;
-            p
-        }
-        (None, Some(p)) => p,
-        (None, None) => Params::default(),
-    };
+    let params = upload_params(raw.params, query_params)?;
     if raw.bytes.is_empty() {
         return Err(Problem::new(Code::EmptyBody, "the mesh file is empty"));
     }
@@ -167,6 +153,24 @@ pub async fn read_upload(req: Request<Body>, config: &UploadConfig) -> Result<Up
         bytes,
         raw: raw_bytes,
     })
+}
+
+/// The parameters of an upload: from its `params` part or from the query
+/// string (already validated), not both; the defaults when neither.
+fn upload_params(part: Option<Vec<u8>>, query: Option<Params>) -> Result<Params, Problem> {
+    match (part, query) {
+        (Some(_), Some(_)) => Err(Problem::new(
+            Code::InvalidParameter,
+            "parameters were given both in the `params` part and in the query string; use one",
+        )),
+        (Some(part), None) => {
+            let p = params_from_json(&part, "the `params` part")?;
+            p.validate()?;
+            Ok(p)
+        }
+        (None, Some(p)) => Ok(p),
+        (None, None) => Ok(Params::default()),
+    }
 }
 
 /// The mesh bytes before parsing.

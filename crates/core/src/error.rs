@@ -83,33 +83,57 @@ impl ShapeError {
     }
 }
 
-/// Declares [`ErrorCode`] with each variant's snake_case text.
-macro_rules! error_codes {
-    ($($(#[$doc:meta])* $variant:ident = $text:literal,)*) => {
-        /// The stable code of every error the core reports: what a machine
-        /// consumer matches on (the service's `code` field). Adding one makes
-        /// every exhaustive `match` on it (the service's status table)
-        /// name it.
+/// Declares an enum of stable error codes, each variant with its
+/// snake_case text: `as_str`, `OWN` (the variants declared here, in
+/// order), `Display` and comparison with text. An optional first variant
+/// wraps another such enum (the service's codes wrap the core's).
+#[macro_export]
+macro_rules! error_code_enum {
+    (
+        $(#[$meta:meta])*
+        $name:ident $({ $(#[$wrap_doc:meta])* $wrap:ident($inner:ty) })?;
+        $($(#[$doc:meta])* $variant:ident = $text:literal,)*
+    ) => {
+        $(#[$meta])*
         #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-        pub enum ErrorCode {
+        pub enum $name {
+            $($(#[$wrap_doc])* $wrap($inner),)?
             $($(#[$doc])* $variant,)*
         }
 
-        impl ErrorCode {
-            /// Every code, in declaration order.
-            pub const ALL: &[ErrorCode] = &[$(ErrorCode::$variant,)*];
+        impl $name {
+            /// The codes declared here (not those wrapped), in order.
+            #[allow(dead_code)]
+            pub const OWN: &[$name] = &[$($name::$variant,)*];
 
             /// The snake_case text, e.g. `parse_error`.
             pub fn as_str(self) -> &'static str {
                 match self {
-                    $(ErrorCode::$variant => $text,)*
+                    $($name::$wrap(code) => code.as_str(),)?
+                    $($name::$variant => $text,)*
                 }
+            }
+        }
+
+        impl std::fmt::Display for $name {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str(self.as_str())
+            }
+        }
+
+        impl PartialEq<&str> for $name {
+            fn eq(&self, other: &&str) -> bool {
+                self.as_str() == *other
             }
         }
     };
 }
 
-error_codes! {
+error_code_enum! {
+    /// The stable code of every error the core reports: what a machine
+    /// consumer matches on (the service's `code` field). Adding one makes
+    /// every exhaustive `match` on it (the service's status table) name it.
+    ErrorCode;
     /// A file is malformed.
     ParseError = "parse_error",
     /// A face refers to a vertex that does not exist.
@@ -152,18 +176,6 @@ error_codes! {
     Cancelled = "cancelled",
 }
 
-impl std::fmt::Display for ErrorCode {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl PartialEq<&str> for ErrorCode {
-    fn eq(&self, other: &&str) -> bool {
-        self.as_str() == *other
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -171,7 +183,7 @@ mod tests {
     #[test]
     fn codes_are_distinct_snake_case() {
         let mut seen = std::collections::HashSet::new();
-        for code in ErrorCode::ALL {
+        for code in ErrorCode::OWN {
             let s = code.as_str();
             assert!(seen.insert(s), "{s} twice");
             assert!(

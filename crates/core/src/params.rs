@@ -6,6 +6,8 @@
 //! Unknown fields are rejected when deserialising.
 
 use crate::error::ErrorCode;
+use crate::fit::quadric_fit::MAX_FIT_POINTS;
+use crate::smoothing::neighbourhood::MAX_RINGS;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -66,13 +68,12 @@ pub struct Params {
     /// Passes of initial smoothing with fixed 2-ring fits (section 2.2).
     /// Default 3; range 0..=100.
     pub initial_passes: u32,
-    /// Passes of adaptive smoothing (section 2.3). Default 22; range 0..=200.
-    /// (Measured on the voxel test shapes with cubic fits: the sphere r=40
-    /// needs 20-24 passes to damp its long staircase waves, beyond 22 the
-    /// ellipsoid starts to drift; with quadric fits the drift starts after
-    /// about 8.) Vertices whose neighbourhood grew to 15 rings or more
-    /// (flat regions) move with momentum and make 8 in 11 of these passes
-    /// (16 of 22), which damps those waves as far with less drift.
+    /// Passes of adaptive smoothing (section 2.3). Default 22; range 0..=200:
+    /// enough passes to damp a large sphere's long staircase waves, few
+    /// enough that a surface of changing curvature does not drift
+    /// (`docs/tuning.md`). Vertices whose neighbourhood grew to 15 rings or
+    /// more (flat regions) move with momentum and make 8 in 11 of these
+    /// passes (16 of 22), which damps those waves as far with less drift.
     pub adaptive_passes: u32,
     /// Surface model of the adaptive fits. Default `cubic`.
     pub adaptive_fit: AdaptiveFit,
@@ -81,8 +82,8 @@ pub struct Params {
     pub k_max: u32,
     /// Most neighbours used in one fit: larger rings are thinned to this many
     /// well-spread points, so a fit's cost does not grow with `k`.
-    /// Default 56 (measured: 48 leaves the voxel ellipsoid at 0.045 voxel,
-    /// above its 0.041 target); range 6..=512.
+    /// Default 56, the fewest that keep the voxel ellipsoid within its
+    /// accuracy target (`docs/tuning.md`); range 6..=512.
     pub max_fit_points: u32,
     /// Ring of the fits that estimate the curvature used for labelling and
     /// ring growth, after initial smoothing (open in the paper: a wider fit
@@ -249,6 +250,11 @@ impl ParamError {
     }
 }
 
+// The ranges of `k_max`, `curvature_ring`, `shape_ring` and
+// `max_fit_points` are the ring walker's and the fits' limits; the texts in
+// `validate` name them.
+const _: () = assert!(MAX_RINGS == 32 && MAX_FIT_POINTS == 512);
+
 fn check_u32(
     field: &'static str,
     v: u32,
@@ -287,10 +293,22 @@ impl Params {
     pub fn validate(&self) -> Result<(), ParamError> {
         check_u32("initial_passes", self.initial_passes, 0, 100, "0..=100")?;
         check_u32("adaptive_passes", self.adaptive_passes, 0, 200, "0..=200")?;
-        check_u32("k_max", self.k_max, 2, 32, "2..=32")?;
-        check_u32("max_fit_points", self.max_fit_points, 6, 512, "6..=512")?;
-        check_u32("curvature_ring", self.curvature_ring, 2, 32, "2..=32")?;
-        check_u32("shape_ring", self.shape_ring, 0, 32, "0..=32")?;
+        check_u32("k_max", self.k_max, 2, MAX_RINGS as u32, "2..=32")?;
+        check_u32(
+            "max_fit_points",
+            self.max_fit_points,
+            6,
+            MAX_FIT_POINTS as u32,
+            "6..=512",
+        )?;
+        check_u32(
+            "curvature_ring",
+            self.curvature_ring,
+            2,
+            MAX_RINGS as u32,
+            "2..=32",
+        )?;
+        check_u32("shape_ring", self.shape_ring, 0, MAX_RINGS as u32, "0..=32")?;
         check_u32("shape_passes", self.shape_passes, 0, 200, "0..=200")?;
         for (field, v, hi, allowed) in [
             ("tolerance_h", self.tolerance_h, 10.0, "0..=10"),

@@ -18,7 +18,7 @@ use crate::report::{mean_curvature_variation, measure_stage, mesh_statistics};
 use crate::smoothing::adaptive::{GrowthRule, PassSettings, adaptive_passes, grow_neighbourhoods};
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
 use crate::smoothing::fidelity::{Fidelity, FidelityBound};
-use crate::smoothing::initial::initial_passes;
+use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
 use crate::smoothing::volume::restore_volume;
@@ -321,21 +321,18 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 /// pass's fits.
 fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), Cancelled> {
     let passes = run.params.initial_passes;
-    let (fits, input_curvature) = initial_passes(
-        run.mesh,
-        run.topo,
-        positions,
-        run.movable,
-        run.params.max_fit_points as usize,
-        run.params.min_normal_cos(),
+    let plan = InitialPlan {
+        movable: run.movable,
+        max_points: run.params.max_fit_points as usize,
+        min_cos: run.params.min_normal_cos(),
         passes,
-        run.fidelity,
-        run.cancel,
-        |p| {
+        fidelity: run.fidelity,
+    };
+    let (fits, input_curvature) =
+        initial_passes(run.mesh, run.topo, positions, plan, run.cancel, |p| {
             run.progress
                 .update(Stage::Initial, p as f64 / passes.max(1) as f64)
-        },
-    )?;
+        })?;
     Ok((fits, mean_curvature_variation(run.topo, &input_curvature)))
 }
 
@@ -387,21 +384,35 @@ fn restore_after_passes(run: &Run, positions: &mut [DVec3]) -> (f64, Option<f64>
     if !run.params.preserve_volume || topo.num_boundary_edges() != 0 {
         return (0.0, None);
     }
+    let offset = restore_input_volume(run, positions, MAX_VOLUME_OFFSET, |_| true);
+    run.fidelity.apply(positions);
     let target = mesh.signed_volume();
-    let max_offset = MAX_VOLUME_OFFSET * mean_edge_length(mesh, positions);
-    let offset = restore_volume(
-        mesh,
-        topo,
+    let change = (signed_volume(mesh, positions) - target) / target.abs();
+    let refused = offset == 0.0 && change.abs() > VOLUME_RESTORED;
+    (offset, refused.then_some(change))
+}
+
+/// Restores the input's enclosed volume at `positions` by an offset along
+/// the normals of at most `max_fraction` of the mean edge length, kept
+/// only if `accept` takes the moved positions ([`restore_volume`]): the
+/// offset applied.
+fn restore_input_volume(
+    run: &Run,
+    positions: &mut [DVec3],
+    max_fraction: f64,
+    accept: impl Fn(&[DVec3]) -> bool,
+) -> f64 {
+    let max_offset = max_fraction * mean_edge_length(run.mesh, positions);
+    let target = run.mesh.signed_volume();
+    restore_volume(
+        run.mesh,
+        run.topo,
         positions,
         run.movable,
         target,
         max_offset,
-        |_| true,
-    );
-    run.fidelity.apply(positions);
-    let change = (signed_volume(mesh, positions) - target) / target.abs();
-    let refused = offset == 0.0 && change.abs() > VOLUME_RESTORED;
-    (offset, refused.then_some(change))
+        accept,
+    )
 }
 
 /// The curvature a stage reports (and the run's per-vertex result): from
@@ -427,8 +438,7 @@ fn stage_curvature(
 /// Hands the allocator's free memory back to the operating system (glibc
 /// keeps what the worker threads freed in their arenas): before the
 /// adaptive passes, where a run's memory peaks, the label stage's freed
-/// scratch would otherwise count in the peak. 13-17 bytes a vertex on the
-/// benchmark spheres.
+/// scratch would otherwise count in the peak.
 fn release_free_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {
@@ -702,20 +712,11 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
         && summary.volume_offset != 0.0
     {
         let defects = defect_count(mesh, positions, input);
-        let max_offset = MAX_VOLUME_REOFFSET * mean_edge_length(mesh, positions);
-        let target = mesh.signed_volume();
-        summary.volume_offset += restore_volume(
-            mesh,
-            topo,
-            positions,
-            run.movable,
-            target,
-            max_offset,
-            |moved| {
+        summary.volume_offset +=
+            restore_input_volume(run, positions, MAX_VOLUME_REOFFSET, |moved| {
                 run.quality_bound.is_none_or(|b| b.allows_all(input, moved))
                     && defect_count(mesh, moved, input) <= defects
-            },
-        );
+            });
     }
     run.quality_fidelity.apply(positions);
     run.progress.update(Stage::Quality, 1.0);

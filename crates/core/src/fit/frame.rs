@@ -34,14 +34,14 @@ impl Frame {
 
     /// Local coordinates `(x, y, z)` of world point `q`.
     #[inline]
-    pub fn to_local(&self, q: DVec3) -> DVec3 {
+    pub fn to_local(self, q: DVec3) -> DVec3 {
         let d = q - self.origin;
         DVec3::new(self.u.dot(d), self.v.dot(d), self.w.dot(d))
     }
 
     /// World point of local coordinates `l`.
     #[inline]
-    pub fn to_world(&self, l: DVec3) -> DVec3 {
+    pub fn to_world(self, l: DVec3) -> DVec3 {
         self.origin + l.x * self.u + l.y * self.v + l.z * self.w
     }
 }

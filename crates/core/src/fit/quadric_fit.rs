@@ -19,12 +19,12 @@
 //!   diagonal entry, fewer than 6 points, or a fitted height beyond `s` (a
 //!   spike) falls back to a plane `e x + f y + g`; if that is also singular
 //!   the vertex stays in place ([`FitKind::Fixed`]).
-//! - Why cubic terms (measured, `examples/accuracy.rs`): a ring neighbourhood
+//! - Why cubic terms: a ring neighbourhood
 //!   is never exactly symmetric about its vertex, and where the curvature
 //!   changes across it (an ellipsoid) a paraboloid absorbs the change into
-//!   `g`, a bias that every pass adds again. The cubic terms take it up:
-//!   the voxel ellipsoid's RMS error fell from 0.051 to 0.041 with nothing
-//!   else changed. They cost noise (four more unknowns), so a cubic fit
+//!   `g`, a bias that every pass adds again. The cubic terms take it up
+//!   (`docs/tuning.md` has the ellipsoid's error with and without). They
+//!   cost noise (four more unknowns), so a cubic fit
 //!   needs [`MIN_CUBIC_POINTS`] points and weights its points with a
 //!   narrower kernel ([`CUBIC_KERNEL`]), which also keeps the remaining
 //!   (quartic) bias down.
@@ -279,6 +279,7 @@ fn gather_and_fit(
 
 /// Fits to points already in local coordinates; `s` is the neighbourhood
 /// scale (root mean square distance).
+#[cfg(test)]
 pub fn fit_local(local: &[DVec3], s: f64) -> QuadricFit {
     fit_points(local, s, FitModel::Quadric, None)
 }

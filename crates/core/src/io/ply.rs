@@ -331,30 +331,7 @@ fn parse_header(bytes: &[u8]) -> Result<Header, IoError> {
             continue;
         }
         match keyword {
-            "format" => {
-                let kind = words.next().unwrap_or_default();
-                encoding = Some(match kind {
-                    "ascii" => Encoding::Ascii,
-                    "binary_little_endian" => Encoding::BinaryLittleEndian,
-                    "binary_big_endian" => Encoding::BinaryBigEndian,
-                    _ => {
-                        return Err(header_error(
-                            line_no,
-                            format!("unknown format `{}`", shorten(kind)),
-                        ));
-                    }
-                });
-                let version = words.next().unwrap_or_default();
-                if version != "1.0" {
-                    return Err(header_error(
-                        line_no,
-                        format!(
-                            "unsupported PLY version `{}`; expected 1.0",
-                            shorten(version)
-                        ),
-                    ));
-                }
-            }
+            "format" => encoding = Some(parse_format(words, line_no)?),
             "comment" | "obj_info" | "" => {}
             "element" => {
                 let (Some(name), Some(count)) = (words.next(), words.next()) else {
@@ -389,45 +366,7 @@ fn parse_header(bytes: &[u8]) -> Result<Header, IoError> {
                         "`property` before any `element`".into(),
                     ));
                 };
-                let words: Vec<&str> = words.collect();
-                let scalar = |name: &str| {
-                    Scalar::parse(name).ok_or_else(|| {
-                        header_error(
-                            line_no,
-                            format!("unknown property type `{}`", shorten(name)),
-                        )
-                    })
-                };
-                let (kind, name) = match words.as_slice() {
-                    ["list", count, item, name] => {
-                        let count = scalar(count)?;
-                        if count.is_float() {
-                            return Err(header_error(
-                                line_no,
-                                "a list count must have an integer type".into(),
-                            ));
-                        }
-                        (
-                            Kind::List {
-                                count,
-                                item: scalar(item)?,
-                            },
-                            name,
-                        )
-                    }
-                    [ty, name] if *ty != "list" => (Kind::Scalar(scalar(ty)?), name),
-                    _ => {
-                        return Err(header_error(
-                            line_no,
-                            "expected `property TYPE NAME` or `property list COUNT_TYPE ITEM_TYPE NAME`"
-                                .into(),
-                        ));
-                    }
-                };
-                element.properties.push(Property {
-                    name: (*name).to_owned(),
-                    kind,
-                });
+                element.properties.push(parse_property(words, line_no)?);
                 element.header_end = pos;
             }
             "end_header" => break,
@@ -445,6 +384,83 @@ fn parse_header(bytes: &[u8]) -> Result<Header, IoError> {
         encoding,
         elements,
         len: pos,
+    })
+}
+
+/// The encoding of a `format` line (its words after the keyword): ASCII
+/// or binary, version 1.0.
+fn parse_format<'a>(
+    mut words: impl Iterator<Item = &'a str>,
+    line_no: usize,
+) -> Result<Encoding, IoError> {
+    let kind = words.next().unwrap_or_default();
+    let encoding = match kind {
+        "ascii" => Encoding::Ascii,
+        "binary_little_endian" => Encoding::BinaryLittleEndian,
+        "binary_big_endian" => Encoding::BinaryBigEndian,
+        _ => {
+            return Err(header_error(
+                line_no,
+                format!("unknown format `{}`", shorten(kind)),
+            ));
+        }
+    };
+    let version = words.next().unwrap_or_default();
+    if version != "1.0" {
+        return Err(header_error(
+            line_no,
+            format!(
+                "unsupported PLY version `{}`; expected 1.0",
+                shorten(version)
+            ),
+        ));
+    }
+    Ok(encoding)
+}
+
+/// The property of a `property` line (its words after the keyword): a
+/// scalar `TYPE NAME` or a `list COUNT_TYPE ITEM_TYPE NAME`.
+fn parse_property<'a>(
+    words: impl Iterator<Item = &'a str>,
+    line_no: usize,
+) -> Result<Property, IoError> {
+    let words: Vec<&str> = words.collect();
+    let scalar = |name: &str| {
+        Scalar::parse(name).ok_or_else(|| {
+            header_error(
+                line_no,
+                format!("unknown property type `{}`", shorten(name)),
+            )
+        })
+    };
+    let (kind, name) = match words.as_slice() {
+        ["list", count, item, name] => {
+            let count = scalar(count)?;
+            if count.is_float() {
+                return Err(header_error(
+                    line_no,
+                    "a list count must have an integer type".into(),
+                ));
+            }
+            (
+                Kind::List {
+                    count,
+                    item: scalar(item)?,
+                },
+                name,
+            )
+        }
+        [ty, name] if *ty != "list" => (Kind::Scalar(scalar(ty)?), name),
+        _ => {
+            return Err(header_error(
+                line_no,
+                "expected `property TYPE NAME` or `property list COUNT_TYPE ITEM_TYPE NAME`".into(),
+            ));
+        }
+    };
+    Ok(Property {
+        name: (*name).to_owned(),
+        kind,
     })
 }
 

@@ -197,17 +197,8 @@ fn read_ascii(bytes: &[u8], limits: &ReadLimits) -> Result<(Vec<DVec3>, StlSourc
         let Some(keyword) = words.next() else {
             continue;
         };
-        // Keywords are matched case-insensitively without allocating.
         let mut lower = [0u8; 16];
-        let keyword = match lower.get_mut(..keyword.len()) {
-            Some(buf) => {
-                buf.copy_from_slice(keyword);
-                buf.make_ascii_lowercase();
-                &*buf
-            }
-            None => keyword,
-        };
-        match keyword {
+        match lowercase(keyword, &mut lower) {
             b"solid" => {
                 if in_solid {
                     return Err(parse_error(Some(line), "`solid` inside a solid".into()));
@@ -253,54 +244,8 @@ fn read_ascii(bytes: &[u8], limits: &ReadLimits) -> Result<(Vec<DVec3>, StlSourc
                     ));
                 }
             }
-            b"vertex" => {
-                let Some((start, count)) = in_facet.as_mut() else {
-                    return Err(parse_error(Some(line), "`vertex` outside a facet".into()));
-                };
-                if *count == 3 {
-                    return Err(parse_error(
-                        Some(line),
-                        format!(
-                            "the facet that starts on line {start} has more than 3 vertices; STL facets are triangles"
-                        ),
-                    ));
-                }
-                *count += 1;
-                let mut xyz = [0.0; 3];
-                for (axis, value) in ["x", "y", "z"].into_iter().zip(xyz.iter_mut()) {
-                    let word = words.next().ok_or_else(|| {
-                        parse_error(
-                            Some(line),
-                            format!("`vertex` needs x, y and z; {axis} is missing"),
-                        )
-                    })?;
-                    *value = parse_number(word).ok_or_else(|| {
-                        parse_error(
-                            Some(line),
-                            format!(
-                                "{axis} coordinate `{}` is not a number within the float32 range",
-                                String::from_utf8_lossy(
-                                    word.get(..word.len().min(40)).unwrap_or(word)
-                                )
-                            ),
-                        )
-                    })?;
-                }
-                positions.push(DVec3::from_array(xyz));
-            }
-            b"endfacet" => {
-                let Some((start, count)) = in_facet.take() else {
-                    return Err(parse_error(Some(line), "`endfacet` without `facet`".into()));
-                };
-                if count != 3 {
-                    return Err(parse_error(
-                        Some(line),
-                        format!(
-                            "the facet that starts on line {start} has {count} vertices; STL facets are triangles"
-                        ),
-                    ));
-                }
-            }
+            b"vertex" => positions.push(facet_vertex(in_facet.as_mut(), words, line)?),
+            b"endfacet" => end_facet(in_facet.take(), line)?,
             other => {
                 return Err(parse_error(
                     Some(line),
@@ -325,6 +270,76 @@ fn read_ascii(bytes: &[u8], limits: &ReadLimits) -> Result<(Vec<DVec3>, StlSourc
         attributes: Vec::new(),
     };
     Ok((positions, source))
+}
+
+/// `keyword` in lower case, in `buf` when it fits (keywords are matched
+/// case-insensitively without allocating).
+fn lowercase<'a>(keyword: &'a [u8], buf: &'a mut [u8; 16]) -> &'a [u8] {
+    match buf.get_mut(..keyword.len()) {
+        Some(buf) => {
+            buf.copy_from_slice(keyword);
+            buf.make_ascii_lowercase();
+            buf
+        }
+        None => keyword,
+    }
+}
+
+/// The vertex of a `vertex` line (its coordinates in `words`) inside the
+/// facet `in_facet` (its first line and vertices so far), counted there.
+fn facet_vertex<'w>(
+    in_facet: Option<&mut (usize, usize)>,
+    mut words: impl Iterator<Item = &'w [u8]>,
+    line: usize,
+) -> Result<DVec3, IoError> {
+    let Some((start, count)) = in_facet else {
+        return Err(parse_error(Some(line), "`vertex` outside a facet".into()));
+    };
+    if *count == 3 {
+        return Err(parse_error(
+            Some(line),
+            format!(
+                "the facet that starts on line {start} has more than 3 vertices; STL facets are triangles"
+            ),
+        ));
+    }
+    *count += 1;
+    let mut xyz = [0.0; 3];
+    for (axis, value) in ["x", "y", "z"].into_iter().zip(xyz.iter_mut()) {
+        let word = words.next().ok_or_else(|| {
+            parse_error(
+                Some(line),
+                format!("`vertex` needs x, y and z; {axis} is missing"),
+            )
+        })?;
+        *value = parse_number(word).ok_or_else(|| {
+            parse_error(
+                Some(line),
+                format!(
+                    "{axis} coordinate `{}` is not a number within the float32 range",
+                    String::from_utf8_lossy(word.get(..word.len().min(40)).unwrap_or(word))
+                ),
+            )
+        })?;
+    }
+    Ok(DVec3::from_array(xyz))
+}
+
+/// Checks the facet an `endfacet` line closes (its first line and vertex
+/// count).
+fn end_facet(facet: Option<(usize, usize)>, line: usize) -> Result<(), IoError> {
+    let Some((start, count)) = facet else {
+        return Err(parse_error(Some(line), "`endfacet` without `facet`".into()));
+    };
+    if count != 3 {
+        return Err(parse_error(
+            Some(line),
+            format!(
+                "the facet that starts on line {start} has {count} vertices; STL facets are triangles"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 fn first_word_end(line: &[u8]) -> usize {

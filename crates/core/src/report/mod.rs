@@ -11,7 +11,9 @@ pub mod measures;
 pub use measures::{mean_curvature_variation, measure_stage, mesh_statistics};
 
 use crate::params::{Method, Params};
-use crate::quality::QualityFixStats;
+pub use crate::quality::{
+    InvertedStats, QualityFixStats, SharpAngleStats, ShortEdgeStats, TwistedStats,
+};
 use crate::smoothing::label::Label;
 use crate::smoothing::project::FitStats;
 use serde::{Deserialize, Serialize};

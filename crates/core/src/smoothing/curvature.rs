@@ -6,7 +6,7 @@
 use super::neighbourhood::{Neighbourhoods, select_rings};
 use crate::fit::frame::Frame;
 use crate::fit::quadric_fit::{Facing, FitModel, fit_neighbours};
-use crate::mesh::{Mesh, Topology, VertexKind};
+use crate::mesh::{Topology, VertexKind};
 use glam::{DVec3, Vec3};
 
 /// Per-vertex curvature `(H, K)`.
@@ -59,11 +59,4 @@ pub fn curvature_at(
     let facing = Facing { normals, min_cos };
     let frame = Frame::new(positions[v], n);
     fit_neighbours(&frame, positions, hood, model, Some(facing)).curvature()
-}
-
-/// Face curvature: the mean of its vertices' `H` (one entry per face).
-pub fn face_mean_curvature(mesh: &Mesh, hk: &[(f64, f64)]) -> Vec<f64> {
-    mesh.faces()
-        .map(|f| f.iter().map(|&v| hk[v as usize].0).sum::<f64>() / f.len() as f64)
-        .collect()
 }

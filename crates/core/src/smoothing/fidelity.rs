@@ -60,6 +60,7 @@ impl<'a> Fidelity<'a> {
     }
 
     /// No bound: every vertex moves freely.
+    #[cfg(test)]
     pub fn unbounded() -> Self {
         Fidelity {
             bound: None,
@@ -85,6 +86,7 @@ impl<'a> Fidelity<'a> {
     }
 
     /// Vertices the bound has held back at least once.
+    #[cfg(test)]
     pub fn held_back(&self) -> u64 {
         self.held
             .iter()
@@ -182,6 +184,7 @@ impl FidelityBound {
     }
 
     /// Whether the mesh was recognised as a voxel lattice.
+    #[cfg(test)]
     pub fn has_lattice(&self) -> bool {
         self.frame.is_some()
     }

@@ -4,7 +4,7 @@
 use super::curvature::{Curvatures, vertex_curvatures};
 use super::fidelity::Fidelity;
 use super::neighbourhood::HoodSource;
-use super::project::{FitStats, apply, fit_pass};
+use super::project::{FitPass, FitStats, apply, fit_pass};
 use crate::control::{Cancelled, check};
 use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::FitModel;
@@ -12,27 +12,44 @@ use crate::mesh::{Mesh, Topology};
 use glam::{DVec3, Vec3};
 use std::sync::atomic::AtomicBool;
 
-/// Initial smoothing: `passes` Jacobi passes of quadric fits over every
-/// vertex's 2-ring (at most `max_points` points,
+/// What [`initial_passes`] runs.
+#[derive(Debug, Clone, Copy)]
+pub struct InitialPlan<'a> {
+    /// Which vertices may move.
+    pub movable: &'a [bool],
+    /// Most points of a fit.
+    pub max_points: usize,
+    /// Neighbours facing away by a cosine below this are left out of a fit
+    /// ([`fit_pass`]).
+    pub min_cos: f64,
+    /// Passes to run.
+    pub passes: u32,
+    /// The fidelity bound each pass's moves are held to.
+    pub fidelity: &'a Fidelity<'a>,
+}
+
+/// Initial smoothing: `plan.passes` Jacobi passes of quadric fits over every
+/// vertex's 2-ring (at most `plan.max_points` points,
 /// [`select_rings`](super::neighbourhood::select_rings)), walked
 /// as each vertex is fitted rather than stored. Updates `positions` in
-/// place and returns the fit statistics, and the curvature of the starting
+/// place, each pass held to `plan.fidelity`, and returns the fit statistics, and the curvature of the starting
 /// positions that pass 0's fits give: [`vertex_curvatures`] with 2 rings,
-/// the curvature a report gives for the input, at no extra cost. `min_cos`
-/// is [`fit_pass`]'s.
-#[allow(clippy::too_many_arguments)]
+/// the curvature a report gives for the input, at no extra cost.
 pub fn initial_passes(
     mesh: &Mesh,
     topo: &Topology,
     positions: &mut [DVec3],
-    movable: &[bool],
-    max_points: usize,
-    min_cos: f64,
-    passes: u32,
-    fidelity: &Fidelity,
+    plan: InitialPlan,
     cancel: &AtomicBool,
     mut on_pass: impl FnMut(u32),
 ) -> Result<(FitStats, Curvatures), Cancelled> {
+    let InitialPlan {
+        movable,
+        max_points,
+        min_cos,
+        passes,
+        fidelity,
+    } = plan;
     let hoods = HoodSource::Walked {
         rings: 2,
         max_points,
@@ -54,14 +71,16 @@ pub fn initial_passes(
             mesh,
             topo,
             positions,
-            hoods,
-            movable,
-            FitModel::Quadric,
-            min_cos,
+            FitPass {
+                hoods,
+                movable,
+                model: FitModel::Quadric,
+                min_cos,
+                refit: None,
+                momentum: None,
+                curvature: first,
+            },
             &mut moves,
-            None,
-            None,
-            first,
         ));
         apply(positions, &moves);
         fidelity.apply(positions);
@@ -96,19 +115,15 @@ mod tests {
         let never = AtomicBool::new(false);
         for passes in [0, 2] {
             let mut p = mesh.positions().to_vec();
-            let (stats, curvature) = initial_passes(
-                &mesh,
-                &topo,
-                &mut p,
-                &movable,
-                56,
-                0.5,
+            let plan = InitialPlan {
+                movable: &movable,
+                max_points: 56,
+                min_cos: 0.5,
                 passes,
-                &Fidelity::unbounded(),
-                &never,
-                |_| {},
-            )
-            .expect("not cancelled");
+                fidelity: &Fidelity::unbounded(),
+            };
+            let (stats, curvature) =
+                initial_passes(&mesh, &topo, &mut p, plan, &never, |_| {}).expect("not cancelled");
             assert_eq!(curvature, expected, "{passes} passes");
             assert!(expected.iter().any(|c| c.0 != 0.0));
             assert_eq!(

@@ -11,7 +11,9 @@
 //! of threads.
 
 use crate::control::{Cancelled, check};
-use crate::mesh::{Mesh, Topology, signed_volume};
+use crate::mesh::Topology;
+#[cfg(test)]
+use crate::mesh::{Mesh, signed_volume};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::sync::atomic::AtomicBool;
@@ -69,6 +71,7 @@ pub fn laplacian_smooth(
 /// The constraint only makes sense for a closed mesh: when the mesh has a
 /// boundary edge, or either volume is not positive, a step is left
 /// unscaled, which makes this plain [`laplacian_smooth`].
+#[cfg(test)]
 pub fn laplacian_smooth_preserving_volume(
     mesh: &Mesh,
     topo: &Topology,
@@ -96,6 +99,7 @@ pub fn laplacian_smooth_preserving_volume(
 /// Scales `positions` about their mean so the signed volume of `mesh`
 /// becomes `target`. Returns the factor applied (1 when either volume is
 /// not positive or there are no vertices).
+#[cfg(test)]
 pub fn rescale_to_volume(mesh: &Mesh, positions: &mut [DVec3], target: f64) -> f64 {
     let volume = signed_volume(mesh, positions);
     if positions.is_empty() || volume <= 0.0 || target <= 0.0 || !volume.is_finite() {

@@ -293,22 +293,20 @@ impl Neighbourhoods {
         }
     }
 
+    #[cfg(test)]
     /// Number of vertices covered.
     pub fn len(&self) -> usize {
         self.offsets.len().saturating_sub(1)
     }
 
-    /// True when no vertex is covered.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
+    #[cfg(test)]
     /// Total number of stored 16-bit units (the lists' memory is twice
     /// this in bytes).
     pub fn units(&self) -> usize {
         self.chunks.iter().map(Vec::len).sum()
     }
 
+    #[cfg(test)]
     /// Builds the lists with `select(v, walker, out)`, which appends vertex
     /// `v`'s neighbours (distinct, in any order) to `out` using a
     /// thread-local [`RingWalker`]. Runs in parallel; the result does not
@@ -410,6 +408,7 @@ impl Neighbourhoods {
             .collect()
     }
 
+    #[cfg(test)]
     /// The 2-ring of every vertex, thinned to at most `max_points` (ring 1
     /// kept whole when it fits).
     pub fn two_ring(topo: &Topology, max_points: usize) -> Neighbourhoods {

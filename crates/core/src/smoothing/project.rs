@@ -130,20 +130,42 @@ impl Momentum<'_> {
 /// When `refit` is given with walked neighbourhoods (kept weights are laid
 /// out like stored lists) or with `curvature` (a fit that keeps weights
 /// solves for its height only).
-#[allow(clippy::too_many_arguments)]
+/// What one [`fit_pass`] fits: where the neighbours come from, which
+/// vertices move, the model, and what the pass keeps or adds.
+pub struct FitPass<'a> {
+    /// Each vertex's neighbourhood.
+    pub hoods: HoodSource<'a>,
+    /// Which vertices may move.
+    pub movable: &'a [bool],
+    /// The surface model.
+    pub model: FitModel,
+    /// Neighbours whose normal makes a cosine below this with the vertex's
+    /// are left out of its fit ([`Facing`]).
+    pub min_cos: f64,
+    /// Keep the fits' weights for [`weighted_pass`] ([`Refit`]).
+    pub refit: Option<Refit<'a>>,
+    /// Moves with momentum ([`Momentum`]).
+    pub momentum: Option<Momentum<'a>>,
+    /// Where to write every vertex's `(H, K)` from its fit.
+    pub curvature: Option<&'a mut [(f64, f64)]>,
+}
+
 pub fn fit_pass(
     mesh: &Mesh,
     topo: &Topology,
     positions: &[DVec3],
-    hoods: HoodSource,
-    movable: &[bool],
-    model: FitModel,
-    min_cos: f64,
+    pass: FitPass,
     out: &mut [Vec3],
-    refit: Option<Refit>,
-    momentum: Option<Momentum>,
-    curvature: Option<&mut [(f64, f64)]>,
 ) -> FitStats {
+    let FitPass {
+        hoods,
+        movable,
+        model,
+        min_cos,
+        refit,
+        momentum,
+        curvature,
+    } = pass;
     let stored = match hoods {
         HoodSource::Stored(h) if curvature.is_none() => Some(h),
         _ => None,
@@ -159,7 +181,6 @@ pub fn fit_pass(
         Some(c) => c.chunks_mut(CHUNK).map(Some).collect(),
         None => (0..chunks).map(|_| None).collect(),
     };
-    type Kept<'b> = (ChunkWeights<'b>, &'b mut [f32]);
     let (kept, limits, stale): (Vec<Option<Kept>>, &[f32], Option<&[bool]>) = match refit {
         Some(r) => (
             r.weights
@@ -174,110 +195,208 @@ pub fn fit_pass(
         ),
         None => ((0..chunks).map(|_| None).collect(), &[], None),
     };
+    let chunk_pass = ChunkPass {
+        mesh,
+        topo,
+        positions,
+        normals: &normals,
+        hoods,
+        movable,
+        model,
+        min_cos,
+        momentum,
+        limits,
+        stale,
+    };
     out.par_chunks_mut(CHUNK)
         .zip(kept)
         .zip(curvature)
         .enumerate()
-        .map(|(c, ((out, mut kept), mut curvature))| {
-            let mut stats = FitStats::default();
-            // Scratch for one vertex: its decoded list and fit weights.
-            let (mut list, mut slot_weights) = (Vec::new(), Vec::new());
-            for (i, o) in out.iter_mut().enumerate() {
-                let v = c * CHUNK + i;
-                let p = positions[v];
-                let prev = std::mem::replace(o, Vec3::ZERO);
-                if let (Some((w, drift)), Some(stale)) = (kept.as_mut(), stale)
-                    && !stale[v]
-                {
-                    if movable[v] {
-                        w.get_f32_into(v, &mut slot_weights);
-                        let (m, d) = reused_move(
-                            positions,
-                            vertex_normal(mesh, topo, positions, v),
-                            w.hoods(),
-                            &slot_weights,
-                            limits[v],
-                            v,
-                            &mut stats,
-                        );
-                        (*o, drift[i]) = with_momentum(momentum, v, m, prev, drift[i], d);
-                    }
-                    continue;
+        .map(|(c, ((out, kept), curvature))| chunk_pass.run(c, out, kept, curvature))
+        .reduce(FitStats::default, FitStats::merge)
+}
+
+/// A chunk's kept weights and drift ([`Refit`]).
+type Kept<'b> = (ChunkWeights<'b>, &'b mut [f32]);
+
+/// What every chunk of a [`fit_pass`] reads.
+struct ChunkPass<'a> {
+    mesh: &'a Mesh,
+    topo: &'a Topology,
+    positions: &'a [DVec3],
+    normals: &'a [Vec3],
+    hoods: HoodSource<'a>,
+    movable: &'a [bool],
+    model: FitModel,
+    min_cos: f64,
+    momentum: Option<Momentum<'a>>,
+    limits: &'a [f32],
+    stale: Option<&'a [bool]>,
+}
+
+impl ChunkPass<'_> {
+    /// Fits the vertices of chunk `c` (moves in `out`, one per vertex of
+    /// the chunk), keeping their weights in `kept` and writing their
+    /// curvature to `curvature` when given.
+    #[inline]
+    fn run(
+        &self,
+        c: usize,
+        out: &mut [Vec3],
+        mut kept: Option<Kept>,
+        mut curvature: Option<&mut [(f64, f64)]>,
+    ) -> FitStats {
+        let ChunkPass {
+            mesh,
+            topo,
+            positions,
+            normals,
+            hoods,
+            movable,
+            model: _,
+            min_cos,
+            momentum,
+            limits,
+            stale,
+        } = *self;
+        let mut stats = FitStats::default();
+        // Scratch for one vertex: its decoded list and fit weights.
+        let (mut list, mut slot_weights) = (Vec::new(), Vec::new());
+        for (i, o) in out.iter_mut().enumerate() {
+            let v = c * CHUNK + i;
+            let p = positions[v];
+            let prev = std::mem::replace(o, Vec3::ZERO);
+            if let (Some((w, drift)), Some(stale)) = (kept.as_mut(), stale)
+                && !stale[v]
+            {
+                if movable[v] {
+                    w.get_f32_into(v, &mut slot_weights);
+                    let (m, d) = reused_move(
+                        positions,
+                        vertex_normal(mesh, topo, positions, v),
+                        w.hoods(),
+                        &slot_weights,
+                        limits[v],
+                        v,
+                        &mut stats,
+                    );
+                    (*o, drift[i]) = with_momentum(momentum, v, m, prev, drift[i], d);
                 }
-                let n = normals[v].as_dvec3().normalize_or_zero();
-                if !movable[v] || n == DVec3::ZERO {
-                    if let Some(curvature) = curvature.as_mut() {
-                        hoods.get_into(topo, v, &mut list);
-                        curvature[i] = curvature_at(topo, positions, &normals, v, &list, min_cos);
-                    }
-                    if let Some((w, drift)) = kept.as_mut() {
-                        w.set(v, &[]);
-                        drift[i] = if movable[v] { UNFITTED_DRIFT } else { 0.0 };
-                    }
-                    continue;
+                continue;
+            }
+            let n = normals[v].as_dvec3().normalize_or_zero();
+            if !movable[v] || n == DVec3::ZERO {
+                if let Some(curvature) = curvature.as_mut() {
+                    hoods.get_into(topo, v, &mut list);
+                    curvature[i] = curvature_at(topo, positions, normals, v, &list, min_cos);
                 }
-                // A movable boundary vertex (rule `normal_only`) fits a plane.
-                let model = if topo.kind(v) == VertexKind::Boundary {
-                    FitModel::Plane
-                } else {
-                    model
-                };
-                let facing = Facing {
-                    normals: &normals,
-                    min_cos,
-                };
-                let frame = Frame::new(p, n);
-                hoods.get_into(topo, v, &mut list);
-                let fit = match kept.as_mut() {
-                    Some((w, _)) => {
-                        slot_weights.resize(list.len(), 0.0);
-                        let fit = fit_neighbours_weighted(
-                            &frame,
-                            positions,
-                            &list,
-                            model,
-                            Some(facing),
-                            &mut slot_weights,
-                        );
-                        w.set(v, &slot_weights);
-                        fit
-                    }
-                    None => {
-                        let fit = fit_neighbours(&frame, positions, &list, model, Some(facing));
-                        if let Some(curvature) = curvature.as_mut() {
-                            curvature[i] = fit.curvature();
-                        }
-                        FitHeight {
-                            kind: fit.kind,
-                            height: fit.height(),
-                        }
-                    }
-                };
-                match fit.kind {
-                    FitKind::Cubic => stats.cubic += 1,
-                    FitKind::Quadric => stats.quadric += 1,
-                    FitKind::Plane => stats.plane_fallback += 1,
-                    FitKind::Fixed => stats.fixed_fallback += 1,
+                if let Some((w, drift)) = kept.as_mut() {
+                    w.set(v, &[]);
+                    drift[i] = if movable[v] { UNFITTED_DRIFT } else { 0.0 };
                 }
-                let g = fit.height;
-                let cut = step(topo, positions, v, g, &mut stats);
-                let failed = fit.kind == FitKind::Fixed || cut != g;
-                let (m, d) = with_momentum(
-                    momentum.filter(|_| !failed),
-                    v,
-                    (cut * n).as_vec3(),
-                    prev,
-                    0.0,
-                    cut.abs() as f32,
+                continue;
+            }
+            hoods.get_into(topo, v, &mut list);
+            let fit = self.fit_height(
+                v,
+                Frame::new(p, n),
+                &list,
+                &mut slot_weights,
+                kept.as_mut().map(|(w, _)| w),
+                curvature.as_mut().map(|c| &mut c[i]),
+            );
+            match fit.kind {
+                FitKind::Cubic => stats.cubic += 1,
+                FitKind::Quadric => stats.quadric += 1,
+                FitKind::Plane => stats.plane_fallback += 1,
+                FitKind::Fixed => stats.fixed_fallback += 1,
+            }
+            let g = fit.height;
+            let cut = step(topo, positions, v, g, &mut stats);
+            let failed = fit.kind == FitKind::Fixed || cut != g;
+            let (m, d) = with_momentum(
+                momentum.filter(|_| !failed),
+                v,
+                (cut * n).as_vec3(),
+                prev,
+                0.0,
+                cut.abs() as f32,
+            );
+            *o = m;
+            if let Some((_, drift)) = kept.as_mut() {
+                drift[i] = if failed { UNFITTED_DRIFT } else { d };
+            }
+        }
+        stats
+    }
+
+    /// Fits vertex `v` in `frame` to its neighbours `list`: the fit's kind
+    /// and height. With `weights`, keeps the fit's linear weights there
+    /// (`scratch` holds them on the way); with `curvature`, writes the
+    /// fit's `(H, K)`.
+    #[inline]
+    fn fit_height(
+        &self,
+        v: usize,
+        frame: Frame,
+        list: &[u32],
+        scratch: &mut Vec<f32>,
+        weights: Option<&mut ChunkWeights>,
+        curvature: Option<&mut (f64, f64)>,
+    ) -> FitHeight {
+        // A movable boundary vertex (rule `normal_only`) fits a plane.
+        let model = if self.topo.kind(v) == VertexKind::Boundary {
+            FitModel::Plane
+        } else {
+            self.model
+        };
+        let facing = Facing {
+            normals: self.normals,
+            min_cos: self.min_cos,
+        };
+        match weights {
+            Some(w) => {
+                scratch.resize(list.len(), 0.0);
+                let fit = fit_neighbours_weighted(
+                    &frame,
+                    self.positions,
+                    list,
+                    model,
+                    Some(facing),
+                    scratch,
                 );
-                *o = m;
-                if let Some((_, drift)) = kept.as_mut() {
-                    drift[i] = if failed { UNFITTED_DRIFT } else { d };
+                w.set(v, scratch);
+                fit
+            }
+            None => {
+                let fit = fit_neighbours(&frame, self.positions, list, model, Some(facing));
+                if let Some(curvature) = curvature {
+                    *curvature = fit.curvature();
+                }
+                FitHeight {
+                    kind: fit.kind,
+                    height: fit.height(),
                 }
             }
-            stats
-        })
-        .reduce(FitStats::default, FitStats::merge)
+        }
+    }
+}
+
+/// What a [`weighted_pass`] reuses: the neighbourhoods the fits were made
+/// over, their linear weights, the step limits ([`step_limits`]), which
+/// vertices move, and their momentum.
+#[derive(Clone, Copy)]
+pub struct Reuse<'a> {
+    /// The neighbourhoods of the kept fits.
+    pub hoods: &'a Neighbourhoods,
+    /// Each vertex's kept linear weights.
+    pub weights: &'a NeighbourWeights,
+    /// Each vertex's step limit.
+    pub limits: &'a [f32],
+    /// Which vertices may move.
+    pub movable: &'a [bool],
+    /// Moves with momentum ([`Momentum`]).
+    pub momentum: Option<Momentum<'a>>,
 }
 
 /// One Jacobi pass that moves each vertex along its current normal by the
@@ -286,30 +405,30 @@ pub fn fit_pass(
 /// moves `out` holds when the pass starts ([`Momentum`]): the fit repeated with its
 /// frame coordinates and point weights kept, at the cost of one weighted
 /// sum, written as each vertex's move to `out`, its length added to the
-/// vertex's `drift` ([`UNFITTED_DRIFT`]). (Keeping the fit's normal
-/// as well would save summing face areas, and changes no figure of
-/// `examples/accuracy.rs`, but on the real brain meshes it leaves six
-/// times as many inverted faces and the neuron gains 30% in volume
-/// instead of 12%: the current normal keeps the passes stable.)
+/// vertex's `drift` ([`UNFITTED_DRIFT`]). The move is along the current
+/// normal, not the fit's: on poorly fitted real meshes the fit's normal
+/// lets the passes fold and swell the surface (`docs/tuning.md`).
 /// Vertices whose weights are all zero (fixed, immovable) stay; so does a
 /// vertex whose move would exceed its `limits` entry ([`step_limits`]),
 /// counted as clamped: reused weights no longer describe a surface that
 /// has moved that far, and a bound taken from the current edges could grow
 /// with them, pass after pass. Counts no fits; returns the displacement
 /// statistics.
-#[allow(clippy::too_many_arguments)]
 pub fn weighted_pass(
     mesh: &Mesh,
     topo: &Topology,
     positions: &[DVec3],
-    hoods: &Neighbourhoods,
-    weights: &NeighbourWeights,
-    limits: &[f32],
+    reuse: Reuse,
     drift: &mut [f32],
-    movable: &[bool],
     out: &mut [Vec3],
-    momentum: Option<Momentum>,
 ) -> FitStats {
+    let Reuse {
+        hoods,
+        weights,
+        limits,
+        movable,
+        momentum,
+    } = reuse;
     let areas = face_vector_areas_f32(mesh, positions);
     out.par_chunks_mut(CHUNK)
         .zip(drift.par_chunks_mut(CHUNK))
@@ -482,9 +601,14 @@ mod tests {
             let mut p = mesh.positions().to_vec();
             p[target] += lift * edge * normal;
             let mut drift = vec![0.25f32; mesh.num_vertices()];
-            let stats = weighted_pass(
-                &mesh, &topo, &p, &hoods, &weights, &limits, &mut drift, &movable, &mut out, None,
-            );
+            let reuse = Reuse {
+                hoods: &hoods,
+                weights: &weights,
+                limits: &limits,
+                movable: &movable,
+                momentum: None,
+            };
+            let stats = weighted_pass(&mesh, &topo, &p, reuse, &mut drift, &mut out);
             let moved = f64::from(out[centre].length());
             if moves {
                 assert!(moved > 0.3 * edge, "followed by {moved}");

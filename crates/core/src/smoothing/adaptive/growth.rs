@@ -14,10 +14,9 @@ use std::sync::atomic::{AtomicU8, Ordering};
 /// A grown neighbourhood keeps its inner rings whole only while they hold
 /// at most `max_points / WHOLE_INNER_DIVISOR` points ([`push_thinned`](crate::smoothing::neighbourhood::push_thinned));
 /// the rest of the budget samples the outer rings, so a large ring spreads
-/// its fit over the whole disc. Measured (`examples/accuracy.rs`, cubic
-/// fits of 60 points, 16 passes): 4 instead of 2 brings the voxel sphere
-/// r=40 from 0.0227 to 0.0212 and leaves the ellipsoid as it was; keeping
-/// no ring whole reaches 0.018 on the sphere but 0.056 on the ellipsoid.
+/// its fit over the whole disc. Keeping more of the budget for the inner
+/// rings biases fits on large flat rings; keeping none loses the near
+/// points that curved surfaces need (`docs/tuning.md`).
 pub const WHOLE_INNER_DIVISOR: usize = 4;
 
 /// How neighbourhoods may grow.

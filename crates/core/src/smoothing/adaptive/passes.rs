@@ -8,7 +8,8 @@ use crate::mesh::{Mesh, Topology};
 use crate::smoothing::fidelity::Fidelity;
 use crate::smoothing::neighbourhood::{HoodSource, Neighbourhoods};
 use crate::smoothing::project::{
-    FitStats, Momentum, Refit, UNFITTED_DRIFT, apply, fit_pass, step_limits, weighted_pass,
+    FitPass, FitStats, Momentum, Refit, Reuse, UNFITTED_DRIFT, apply, fit_pass, step_limits,
+    weighted_pass,
 };
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -19,15 +20,11 @@ use std::sync::atomic::AtomicBool;
 pub const FIRST_REFIT_GAP: u32 = 4;
 
 /// True when adaptive pass `pass` (from 0) fits anew: passes 0, 4, 12, 28,
-/// ... ([`smooth_passes`] adds the last
-/// pass). The others reuse the latest fit's linear weights. Measured
-/// (`examples/accuracy.rs`, 22 passes, RMS on the voxel sphere r=12, torus,
-/// ellipsoid, sphere r=40): refitting every pass 0.0330, 0.0426, 0.0407,
-/// 0.0204; this schedule (4 refits) 0.0331, 0.0429, 0.0409, 0.0205; refits
-/// at the first and last pass only 0.0336, 0.0441, 0.0414, 0.0208. The
-/// largest difference in a vertex's position between every pass and this
-/// schedule, on the torus without volume restoration, is 0.002 voxel. A
-/// refit costs about 9 weighted passes.
+/// ... ([`smooth_passes`] adds the last pass). The others reuse the latest
+/// fit's linear weights, which change little once the surface has settled:
+/// refits grow sparser as the passes go on, and a refit costs several
+/// weighted passes. How close this schedule stays to refitting every pass
+/// is in `docs/tuning.md`.
 pub fn is_refit_pass(pass: u32) -> bool {
     pass.is_multiple_of(FIRST_REFIT_GAP) && (pass / FIRST_REFIT_GAP + 1).is_power_of_two()
 }
@@ -37,17 +34,9 @@ pub fn is_refit_pass(pass: u32) -> bool {
 /// fraction of its mean input edge length since its latest fit (or that
 /// fit or a later move failed); the others keep moving by their weights.
 /// Where the surface has settled, a new fit would give the same weights.
-/// Measured (`examples/accuracy.rs`, RMS on the voxel sphere r=12, torus,
-/// ellipsoid, sphere r=40): every vertex refitted 0.0331, 0.0429, 0.0409,
-/// 0.0205; 0.02: 0.0332, 0.0431, 0.0408, 0.0205; 0.05: 0.0333, 0.0433,
-/// 0.0409, 0.0205. On the real meshes 0.02 stays close to refitting all
-/// (the WM voxel quads keep 12 inverted faces instead of 8, the WM
-/// marching cubes 3 instead of 5), 0.05 less so (spot_quadrangulated
-/// keeps 9 inverted faces instead of 3, the WM marching cubes 8, the
-/// neuron gains 13.9% in volume instead of 12.0%). At 0.02 the benchmark
-/// sphere of 228k vertices made about 1.3 fits a vertex after the first
-/// refit instead of 3, before its flat vertices kept their first fit
-/// ([`FLAT_RING`]): now about 0.1.
+/// The value is the largest that keeps the analytic shapes' accuracy and
+/// the real meshes' folds where refitting every vertex leaves them; a
+/// larger one lets real meshes fold and swell (`docs/tuning.md`).
 pub const REFIT_TOLERANCE: f32 = 0.02;
 
 /// A vertex whose neighbourhood grew to at least this many rings is flat
@@ -55,31 +44,30 @@ pub const REFIT_TOLERANCE: f32 = 0.02;
 /// [`FLAT_MOMENTUM`], [`flat_passes`]). There the passes damp long
 /// staircase waves slowly but steadily (the voxel sphere r=40 still
 /// improves at 30 passes), while where the curvature changes each pass
-/// adds bias (the ellipsoid is best at 16 passes): flat vertices reach in
-/// 16 passes with momentum what plain passes reach in 22, and stop there.
-/// Measured (`examples/accuracy.rs`, RMS on the voxel sphere r=12, torus,
-/// ellipsoid, sphere r=40): 22 plain passes 0.0332, 0.0431, 0.0408,
-/// 0.0205; flat vertices (15 rings) with momentum 0.8 stopping after 16
-/// passes 0.0332, 0.0431, 0.0402, 0.0199 (marching cubes 0.0290, 0.0403,
-/// 0.0385, 0.0212); 16 rings: the same; momentum 0.5: sphere r=40 0.0204.
-/// Momentum on every vertex helps the spheres but biases the ellipsoid
-/// (0.0411 at 16 passes), plain over-relaxation by 1.8 diverges, and 16
-/// passes for every vertex lose the real brain meshes' quality (the WM
-/// voxel quads kept 26 inverted faces instead of 13); the real meshes are
-/// mostly far below 15 rings and keep all the passes. Flat vertices also
-/// keep their first fit ([`EarlyStop`]): refitting them at passes 4 and 12
-/// changes the figures above by at most 0.0002 (sphere r=40 0.0201) and
-/// costs a full cubic fit a vertex on a large smooth surface (the
-/// benchmark sphere makes 1.1 fits a vertex instead of 2.2).
-///
+/// adds bias: flat vertices reach with momentum in fewer passes what plain
+/// passes reach in all of them, and stop there. Only vertices of large
+/// smooth regions grow this far; curved or noisy parts (most of a real
+/// mesh) stay below it and keep all the passes, where momentum or fewer
+/// passes would bias or fold them. Flat vertices also keep their first fit
+/// ([`EarlyStop`]): their neighbourhoods change too little for a refit to
+/// matter. With `k_max` below this no vertex is flat and every vertex
+/// makes every pass. The measurements behind the value are in
+/// `docs/tuning.md`.
 pub const FLAT_RING: u8 = 15;
 
-/// The momentum of flat vertices ([`FLAT_RING`],
-/// [`Momentum`]).
+// A ring size is stored in a byte and neighbourhoods grow to at most
+// `MAX_RINGS`: the flat ring must be reachable.
+const _: () =
+    assert!(FLAT_RING as usize <= crate::smoothing::neighbourhood::MAX_RINGS && FLAT_RING >= 3);
+
+/// The momentum of flat vertices ([`FLAT_RING`], [`Momentum`]): enough to
+/// reach in [`flat_passes`] what plain passes reach in all of them; much
+/// more overshoots (`docs/tuning.md`).
 pub const FLAT_MOMENTUM: f32 = 0.8;
 
 /// How many of the adaptive `passes` flat vertices make ([`FLAT_RING`]):
-/// 8 in 11 (16 of the default 22).
+/// 8 in 11 (16 of the default 22), where momentum [`FLAT_MOMENTUM`] has
+/// damped the staircase waves as far as all the passes would.
 pub fn flat_passes(passes: u32) -> u32 {
     passes - passes * 3 / 11
 }
@@ -132,8 +120,7 @@ pub struct ShapeStop<'a> {
 /// first and the last pass; the others are [`weighted_pass`]es with the
 /// weights of the latest fit. The last pass refits so the result lies on
 /// fits made for it: on real meshes whose fits are poor (thin tubes,
-/// non-manifold parts), passes on reused weights drift (the neuron of the
-/// real-mesh sweep gains 15% in volume instead of 10% without it).
+/// non-manifold parts), passes on reused weights drift.
 /// With `refit_tolerance`, refits after the first are selective: only the
 /// [`stale_vertices`] fit anew, the others move by their kept weights.
 /// With `early`, its vertices move with momentum and stop after its
@@ -202,10 +189,16 @@ pub fn smooth_passes(
         });
         let s =
             match kept.as_mut() {
-                Some((weights, drift, limits)) if !refits(pass) => weighted_pass(
-                    mesh, topo, positions, hoods, weights, limits, drift, movable, &mut moves,
-                    momentum,
-                ),
+                Some((weights, drift, limits)) if !refits(pass) => {
+                    let reuse = Reuse {
+                        hoods,
+                        weights,
+                        limits,
+                        movable,
+                        momentum,
+                    };
+                    weighted_pass(mesh, topo, positions, reuse, drift, &mut moves)
+                }
                 kept => {
                     // Before the first fit every vertex is stale.
                     let stale =
@@ -225,14 +218,16 @@ pub fn smooth_passes(
                         mesh,
                         topo,
                         positions,
-                        HoodSource::Stored(hoods),
-                        movable,
-                        model,
-                        min_cos,
+                        FitPass {
+                            hoods: HoodSource::Stored(hoods),
+                            movable,
+                            model,
+                            min_cos,
+                            refit,
+                            momentum,
+                            curvature: None,
+                        },
                         &mut moves,
-                        refit,
-                        momentum,
-                        None,
                     )
                 }
             };
@@ -297,7 +292,7 @@ pub fn stale_vertices(
 mod tests {
     use super::*;
     use crate::shapes;
-    use crate::smoothing::initial::initial_passes;
+    use crate::smoothing::initial::{InitialPlan, initial_passes};
     use crate::smoothing::neighbourhood::push_thinned;
 
     /// `mesh`'s positions after the initial passes, as in the pipeline: the
@@ -306,19 +301,14 @@ mod tests {
         let mut start = mesh.positions().to_vec();
         let movable = vec![true; mesh.num_vertices()];
         let never = AtomicBool::new(false);
-        initial_passes(
-            mesh,
-            topo,
-            &mut start,
-            &movable,
-            56,
-            0.0,
-            3,
-            &crate::smoothing::fidelity::Fidelity::unbounded(),
-            &never,
-            |_| {},
-        )
-        .expect("not cancelled");
+        let plan = InitialPlan {
+            movable: &movable,
+            max_points: 56,
+            min_cos: 0.0,
+            passes: 3,
+            fidelity: &Fidelity::unbounded(),
+        };
+        initial_passes(mesh, topo, &mut start, plan, &never, |_| {}).expect("not cancelled");
         start
     }
 

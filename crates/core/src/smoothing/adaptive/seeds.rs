@@ -14,37 +14,28 @@ use std::ops::Range;
 /// every test passed with room to spare ([`ROBUST_SLACK`]), so the
 /// vertex's own growth would very likely have reached `k_max` too. The
 /// seeds cover every vertex within one edge and are about a quarter of the
-/// vertices of a voxel sphere ([`SEED_GROUP`]); on the benchmark sphere of
-/// 228k vertices 25% are seeds, 70% share and 4% grow themselves.
-/// Measured (`examples/accuracy.rs`, RMS on the voxel sphere r=12, torus,
-/// ellipsoid, sphere r=40): growing every vertex 0.0332, 0.0431, 0.0402,
-/// 0.0201; sharing from ring 6 (slack 0.5) 0.0332, 0.0431, 0.0406,
-/// 0.0203; from ring 5 (slack 0.3) 0.0332, 0.0431, 0.0404, 0.0203; from
-/// ring 4 the same within 0.0001; with the seed groups and the second
-/// seed, 0.0332, 0.0431, 0.0406, 0.0202. On one thread the label stage took 957
-/// ms growing every vertex, about 600 sharing from ring 6 and 565 from
-/// ring 5 (after faster ring walks). Sharing with every seed that grew to
-/// 8 rings regardless of its margins takes the ellipsoid to 0.0416 (the
-/// growth decisions there are close calls); seeds two edges away take
-/// sphere r=40 to 0.0212.
+/// vertices of a voxel sphere ([`SEED_GROUP`]). From this ring out the
+/// seed's samples are as good as the vertex's own: sharing from here
+/// keeps the analytic shapes' accuracy within the noise of growing every
+/// vertex, at a fraction of the walking; sharing without the margins, or
+/// seeds two edges away, cost accuracy (`docs/tuning.md`).
 pub const SHARED_FROM_RING: usize = 5;
 
 /// Seeds are picked among the vertices of a group of this many chunks of
 /// lists ([`Neighbourhoods::build_chunked`](crate::smoothing::neighbourhood::Neighbourhoods::build_chunked), [`pick_seeds`]): a vertex's
 /// seed lies in its group, and on a voxel sphere the rows of the next
 /// slice fall in the same group of 4096 vertices far more often than in
-/// the same chunk of 1024. Measured on the benchmark sphere of 228k
-/// vertices: seeds are 30.4% of the vertices with groups of 1 chunk, 26.6%
-/// with 2, 25.5% with 4, 24.5% with 8; groups of 4 take the label stage
-/// from 531 to 516 ms on one thread.
+/// the same chunk of 1024, so fewer vertices are seeds. Larger groups
+/// gain little more and hold more lists at once (`docs/tuning.md`).
 pub const SEED_GROUP: usize = 4;
 
 /// A seed's growth is shared ([`SHARED_FROM_RING`]) only when every ring
 /// it accepted passed each test of [`GrowthRule`](super::GrowthRule) within `1 - ROBUST_SLACK`
 /// of its bound (label disagreement, bias, the rise and the bound of the
-/// curvature spread). Measured as above, sharing from ring 6: slack 0.3,
-/// 0.5 and 0.6 give the ellipsoid 0.0405, 0.0406 and 0.0404 and share 61%,
-/// 57% and 53% of the benchmark sphere.
+/// curvature spread): a seed that passed its tests only narrowly could
+/// have stopped earlier for a neighbour. Accuracy barely moves between
+/// 0.3 and 0.6 while a smaller slack lets more vertices share
+/// (`docs/tuning.md`).
 pub const ROBUST_SLACK: f64 = 0.3;
 
 /// Seeds for the vertices of `range` (a group of chunks,
