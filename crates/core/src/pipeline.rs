@@ -21,6 +21,7 @@ use crate::smoothing::fidelity::{Fidelity, FidelityBound};
 use crate::smoothing::initial::initial_passes;
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
+use crate::smoothing::staircase::relax_staircase;
 use crate::smoothing::volume::restore_volume;
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::{DVec3, Vec3};
@@ -319,23 +320,44 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 /// The initial passes (paper section 2.2) on `positions`: their fit
 /// statistics and the input's mean curvature variation, from the first
 /// pass's fits.
+/// The staircase relaxation ([`relax_staircase`]) runs between the first
+/// pass, whose fits also give the input's curvature, and the second.
 fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), Cancelled> {
-    let passes = run.params.initial_passes;
-    let (fits, input_curvature) = initial_passes(
-        run.mesh,
-        run.topo,
-        positions,
-        run.movable,
-        run.params.max_fit_points as usize,
-        run.params.min_normal_cos(),
-        passes,
-        run.fidelity,
-        run.cancel,
-        |p| {
-            run.progress
-                .update(Stage::Initial, p as f64 / passes.max(1) as f64)
-        },
-    )?;
+    let params = run.params;
+    let passes = params.initial_passes;
+    let some_passes = |positions: &mut [DVec3], n: u32, done: u32| {
+        initial_passes(
+            run.mesh,
+            run.topo,
+            positions,
+            run.movable,
+            params.max_fit_points as usize,
+            params.min_normal_cos(),
+            n,
+            run.fidelity,
+            run.cancel,
+            |p| {
+                run.progress.update(
+                    Stage::Initial,
+                    f64::from(done + p) / f64::from(passes.max(1)),
+                )
+            },
+        )
+    };
+    let (mut fits, input_curvature) = some_passes(positions, passes.min(1), 0)?;
+    if passes > 1 {
+        relax_staircase(
+            run.mesh,
+            run.topo,
+            positions,
+            run.movable,
+            params.staircase_steps,
+            params.staircase_lambda,
+            params.min_normal_cos(),
+            run.fidelity,
+        );
+        fits.accumulate(some_passes(positions, passes - 1, 1)?.0);
+    }
     Ok((fits, mean_curvature_variation(run.topo, &input_curvature)))
 }
 
