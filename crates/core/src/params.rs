@@ -126,6 +126,17 @@ pub struct Params {
     /// across a fold, and fitting it would pull both sides together (open
     /// in the paper). 180 keeps every neighbour. Default 60; range 0..=180.
     pub max_normal_angle_deg: f64,
+    /// Staircase relaxation steps between the first and the second initial
+    /// pass: each moves every vertex `staircase_lambda` of the way to the
+    /// mean of its neighbours, within the fidelity bound, so the later fits
+    /// are made in frames that follow the surface instead of a voxel
+    /// staircase's diagonals (our addition to section 2.2; needs at least
+    /// 2 initial passes). Default 2; range 0..=10.
+    pub staircase_steps: u32,
+    /// Step of the staircase relaxation, a fraction of the way to the
+    /// neighbours' mean: two half steps remove the corners' spikes without
+    /// the shrinking of a full umbrella step. Default 0.5; range 0 < l <= 1.
+    pub staircase_lambda: f64,
     /// A vertex whose adaptive neighbourhood stays within this many rings
     /// lies on the shape, not on the staircase: the curvature changes
     /// within a few rings of it (a gyrus, a thin tube). The initial passes
@@ -194,6 +205,8 @@ impl Default for Params {
             curvature_std_bound: 0.05,
             bias_bound: 0.06,
             max_normal_angle_deg: 60.0,
+            staircase_steps: 2,
+            staircase_lambda: 0.5,
             shape_ring: 2,
             shape_passes: 4,
             max_displacement: Some(0.5),
@@ -309,6 +322,9 @@ impl Params {
             "2..=32",
         )?;
         check_u32("shape_ring", self.shape_ring, 0, MAX_RINGS as u32, "0..=32")?;
+        check_u32("staircase_steps", self.staircase_steps, 0, 10, "0..=10")?;
+        let l = self.staircase_lambda;
+        check_f64("staircase_lambda", l, l > 0.0 && l <= 1.0, "0 < l <= 1")?;
         check_u32("shape_passes", self.shape_passes, 0, 200, "0..=200")?;
         for (field, v, hi, allowed) in [
             ("tolerance_h", self.tolerance_h, 10.0, "0..=10"),

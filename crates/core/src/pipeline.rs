@@ -21,6 +21,7 @@ use crate::smoothing::fidelity::{Fidelity, FidelityBound};
 use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
+use crate::smoothing::staircase::relax_staircase;
 use crate::smoothing::volume::restore_volume;
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::{DVec3, Vec3};
@@ -318,21 +319,40 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 
 /// The initial passes (paper section 2.2) on `positions`: their fit
 /// statistics and the input's mean curvature variation, from the first
-/// pass's fits.
+/// pass's fits. The staircase relaxation ([`relax_staircase`]) runs between the first
+/// pass, whose fits also give the input's curvature, and the second.
 fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), Cancelled> {
-    let passes = run.params.initial_passes;
-    let plan = InitialPlan {
-        movable: run.movable,
-        max_points: run.params.max_fit_points as usize,
-        min_cos: run.params.min_normal_cos(),
-        passes,
-        fidelity: run.fidelity,
-    };
-    let (fits, input_curvature) =
+    let params = run.params;
+    let passes = params.initial_passes;
+    let some_passes = |positions: &mut [DVec3], n: u32, done: u32| {
+        let plan = InitialPlan {
+            movable: run.movable,
+            max_points: params.max_fit_points as usize,
+            min_cos: params.min_normal_cos(),
+            passes: n,
+            fidelity: run.fidelity,
+        };
         initial_passes(run.mesh, run.topo, positions, plan, run.cancel, |p| {
-            run.progress
-                .update(Stage::Initial, p as f64 / passes.max(1) as f64)
-        })?;
+            run.progress.update(
+                Stage::Initial,
+                f64::from(done + p) / f64::from(passes.max(1)),
+            )
+        })
+    };
+    let (mut fits, input_curvature) = some_passes(positions, passes.min(1), 0)?;
+    if passes > 1 {
+        relax_staircase(
+            run.mesh,
+            run.topo,
+            positions,
+            run.movable,
+            params.staircase_steps,
+            params.staircase_lambda,
+            params.min_normal_cos(),
+            run.fidelity,
+        );
+        fits.accumulate(some_passes(positions, passes - 1, 1)?.0);
+    }
     Ok((fits, mean_curvature_variation(run.topo, &input_curvature)))
 }
 

@@ -97,7 +97,7 @@ fn normal_only_boundary_moves_along_the_normal() {
                 // A corner's normal is its one face's, which tilts while the
                 // 2-ring passes work on the checkerboard: it may drift
                 // sideways, but by a few hundredths of an edge at most.
-                assert!(tangential < 0.05, "corner {v} moved {d}");
+                assert!(tangential < 0.08, "corner {v} moved {d}");
             } else {
                 assert!(tangential < 0.5 * d.z.abs() + 1e-9, "vertex {v} moved {d}");
             }

@@ -9,5 +9,6 @@ pub mod label;
 pub mod laplacian;
 pub mod neighbourhood;
 pub mod project;
+pub mod staircase;
 pub mod taubin;
 pub mod volume;
