@@ -209,15 +209,16 @@ fn a_voxel_sphere_obj_is_smoothed_shown_and_downloaded() {
         );
     }
 
-    // Without the staircase relaxation and the quality fixes the adaptive
-    // result keeps some folds (the relaxation alone removes them on this
-    // sphere): the page finds as many flipped faces as the report counts
+    // Without the fidelity bound, the staircase relaxation and the quality
+    // fixes the adaptive result keeps some folds (each of the three removes
+    // them on this sphere): the page finds as many flipped faces as the report counts
     // inverted ones (each a quad with one split triangle turned over), and
     // none with them.
     assert_eq!(flipped_and_reported(&mut browser), (0, 0));
     browser.eval(
         "(() => { document.getElementById('p-quality-enabled').checked = false; \
-         document.getElementById('p-staircase-steps').value = '0'; return true; })()",
+         document.getElementById('p-staircase-steps').value = '0'; \
+         document.getElementById('p-max-displacement').value = ''; return true; })()",
     );
     let (state, _) = upload(&mut browser, &file);
     assert_eq!(state, "done", "{}", browser.eval(DESCRIBE));
