@@ -324,13 +324,14 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), Cancelled> {
     let params = run.params;
     let passes = params.initial_passes;
-    let some_passes = |positions: &mut [DVec3], n: u32, done: u32| {
+    let some_passes = |positions: &mut [DVec3], n: u32, done: u32, curvature: bool| {
         let plan = InitialPlan {
             movable: run.movable,
             max_points: params.max_fit_points as usize,
             min_cos: params.min_normal_cos(),
             passes: n,
             fidelity: run.fidelity,
+            curvature,
         };
         initial_passes(run.mesh, run.topo, positions, plan, run.cancel, |p| {
             run.progress.update(
@@ -339,7 +340,7 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             )
         })
     };
-    let (mut fits, input_curvature) = some_passes(positions, passes.min(1), 0)?;
+    let (mut fits, input_curvature) = some_passes(positions, passes.min(1), 0, true)?;
     if passes > 1 {
         relax_staircase(
             run.mesh,
@@ -351,7 +352,7 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             params.min_normal_cos(),
             run.fidelity,
         );
-        fits.accumulate(some_passes(positions, passes - 1, 1)?.0);
+        fits.accumulate(some_passes(positions, passes - 1, 1, false)?.0);
     }
     Ok((fits, mean_curvature_variation(run.topo, &input_curvature)))
 }
@@ -529,7 +530,7 @@ pub fn run(
         .map(|d| FidelityBound::new(mesh, &topo, d));
     let quality_bound = bound.as_ref().map(|b| b.widened(QUALITY_ROOM));
     let fidelity = Fidelity::new(bound.as_ref(), mesh.positions());
-    let quality_fidelity = Fidelity::new(quality_bound.as_ref(), mesh.positions());
+    let quality_fidelity = fidelity.with_bound(quality_bound.as_ref());
     let run = Run {
         mesh,
         topo: &topo,
@@ -582,9 +583,7 @@ pub fn run(
     }
     check(cancel)?;
     if let Some(summary) = report.wang_yu.as_mut() {
-        summary.fidelity_held_back = bound
-            .as_ref()
-            .map(|_| fidelity.held_back_with(&quality_fidelity));
+        summary.fidelity_held_back = bound.as_ref().map(|_| fidelity.held_back());
     }
 
     let curvature = timings.time(Stage::Report, || {

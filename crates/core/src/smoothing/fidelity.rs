@@ -19,6 +19,7 @@
 //! length: 0.5 gives the dual voxel on a lattice, so no vertex of a voxel
 //! mesh moves more than `sqrt(3) / 2` voxel.
 
+use super::project::mean_edge_at;
 use crate::mesh::{Mesh, Topology};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -41,8 +42,9 @@ const FRAME_CANDIDATES: usize = 8;
 #[derive(Debug)]
 pub struct Fidelity<'a> {
     bound: Option<(&'a FidelityBound, &'a [DVec3])>,
-    /// Per vertex (when bounded): whether the bound has held it back.
-    held: Vec<AtomicBool>,
+    /// Per vertex (when bounded): whether the bound has held it back;
+    /// shared with the [`Fidelity::with_bound`]s made from this one.
+    held: Arc<[AtomicBool]>,
 }
 
 impl<'a> Fidelity<'a> {
@@ -54,7 +56,23 @@ impl<'a> Fidelity<'a> {
             held: if bound.is_some() {
                 (0..input.len()).map(|_| AtomicBool::new(false)).collect()
             } else {
-                Vec::new()
+                Arc::new([])
+            },
+        }
+    }
+
+    /// The same input positions held to `bound` instead, recording into
+    /// the same held-back vertices (the quality fixes' wider bound counts
+    /// with the smoothing's); unbounded when either is.
+    pub fn with_bound(&self, bound: Option<&'a FidelityBound>) -> Self {
+        match (self.bound, bound) {
+            (Some((_, input)), Some(b)) => Fidelity {
+                bound: Some((b, input)),
+                held: Arc::clone(&self.held),
+            },
+            _ => Fidelity {
+                bound: None,
+                held: Arc::new([]),
             },
         }
     }
@@ -64,7 +82,7 @@ impl<'a> Fidelity<'a> {
     pub fn unbounded() -> Self {
         Fidelity {
             bound: None,
-            held: Vec::new(),
+            held: Arc::new([]),
         }
     }
 
@@ -75,18 +93,8 @@ impl<'a> Fidelity<'a> {
         }
     }
 
-    /// Vertices that this bound or `other` (over the same vertices) has
-    /// held back at least once.
-    pub fn held_back_with(&self, other: &Fidelity) -> u64 {
-        let held =
-            |f: &Fidelity, v: usize| f.held.get(v).is_some_and(|h| h.load(Ordering::Relaxed));
-        (0..self.held.len().max(other.held.len()))
-            .filter(|&v| held(self, v) || held(other, v))
-            .count() as u64
-    }
-
-    /// Vertices the bound has held back at least once.
-    #[cfg(test)]
+    /// Vertices held back at least once, by this bound or by another
+    /// made from it with [`Fidelity::with_bound`].
     pub fn held_back(&self) -> u64 {
         self.held
             .iter()
@@ -124,12 +132,7 @@ impl FidelityBound {
                 if nb.is_empty() {
                     return 0.0;
                 }
-                let mean = nb
-                    .iter()
-                    .map(|&j| p[j as usize].distance(p[v]))
-                    .sum::<f64>()
-                    / nb.len() as f64;
-                let s = (max_displacement * mean) as f32;
+                let s = (max_displacement * mean_edge_at(topo, p, v)) as f32;
                 let on_lattice = frame.is_some_and(|f| {
                     nb.iter()
                         .all(|&j| along_axis(&f, p[j as usize] - p[v]).is_some())
@@ -192,7 +195,7 @@ impl FidelityBound {
     /// Brings every vertex of `positions` back within its bound around
     /// `input` (the same vertex's input position) and marks in `held` the
     /// vertices it moved. Deterministic and parallel per vertex.
-    pub fn clamp(&self, input: &[DVec3], positions: &mut [DVec3], held: &[AtomicBool]) {
+    fn clamp(&self, input: &[DVec3], positions: &mut [DVec3], held: &[AtomicBool]) {
         let frame = self.frame.unwrap_or([DVec3::X, DVec3::Y, DVec3::Z]);
         positions
             .par_iter_mut()

@@ -26,6 +26,9 @@ pub struct InitialPlan<'a> {
     pub passes: u32,
     /// The fidelity bound each pass's moves are held to.
     pub fidelity: &'a Fidelity<'a>,
+    /// Whether to return the curvature of the starting positions (empty
+    /// when not asked for).
+    pub curvature: bool,
 }
 
 /// Initial smoothing: `plan.passes` Jacobi passes of quadric fits over every
@@ -49,6 +52,7 @@ pub fn initial_passes(
         min_cos,
         passes,
         fidelity,
+        curvature: measure,
     } = plan;
     let hoods = HoodSource::Walked {
         rings: 2,
@@ -57,13 +61,13 @@ pub fn initial_passes(
     let mut moves = vec![Vec3::ZERO; positions.len()];
     let mut stats = FitStats::default();
     let mut curvature = Vec::new();
-    if passes == 0 {
+    if passes == 0 && measure {
         let normals = vertex_normals_f32_by_faces(mesh, topo, positions);
         curvature = vertex_curvatures(topo, positions, &normals, 2, max_points, min_cos);
     }
     for pass in 0..passes {
         check(cancel)?;
-        let first = (pass == 0).then(|| {
+        let first = (pass == 0 && measure).then(|| {
             curvature = vec![(0.0, 0.0); positions.len()];
             &mut curvature[..]
         });
@@ -121,6 +125,7 @@ mod tests {
                 min_cos: 0.5,
                 passes,
                 fidelity: &Fidelity::unbounded(),
+                curvature: true,
             };
             let (stats, curvature) =
                 initial_passes(&mesh, &topo, &mut p, plan, &never, |_| {}).expect("not cancelled");

@@ -517,7 +517,7 @@ pub fn step_limits(mesh: &Mesh, topo: &Topology) -> Vec<f32> {
 
 /// Mean length of the edges at vertex `v` in `positions`.
 #[inline]
-fn mean_edge_at(topo: &Topology, positions: &[DVec3], v: usize) -> f64 {
+pub(crate) fn mean_edge_at(topo: &Topology, positions: &[DVec3], v: usize) -> f64 {
     let p = positions[v];
     let nb = topo.neighbors(v);
     nb.iter()

@@ -307,6 +307,7 @@ mod tests {
             min_cos: 0.0,
             passes: 3,
             fidelity: &Fidelity::unbounded(),
+            curvature: true,
         };
         initial_passes(mesh, topo, &mut start, plan, &never, |_| {}).expect("not cancelled");
         start
