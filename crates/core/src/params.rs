@@ -126,17 +126,30 @@ pub struct Params {
     /// across a fold, and fitting it would pull both sides together (open
     /// in the paper). 180 keeps every neighbour. Default 60; range 0..=180.
     pub max_normal_angle_deg: f64,
-    /// Staircase relaxation steps between the first and the second initial
-    /// pass: each moves every vertex `staircase_lambda` of the way to the
-    /// mean of its neighbours, within the fidelity bound, so the later fits
-    /// are made in frames that follow the surface instead of a voxel
-    /// staircase's diagonals (our addition to section 2.2; needs at least
-    /// 2 initial passes). Default 2; range 0..=10.
+    /// Staircase relaxation steps (our addition to section 2.2): each moves
+    /// every vertex part of the way to the mean of its neighbours, within
+    /// the fidelity bound. On a voxel lattice (a voxel-boundary mesh) the
+    /// relaxation replaces the initial passes: `lattice_staircase_lambda`
+    /// steps over all neighbours remove the staircase, and quadric fits
+    /// made on the staircase itself (in frames tilted along its diagonals)
+    /// would only pull the corners back toward it. On any other mesh the
+    /// steps (`staircase_lambda`, facing neighbours only) run between the
+    /// first and the second initial pass, so the later fits are made in
+    /// frames that follow the surface (needs at least 2 initial passes).
+    /// Default 2; range 0..=10 (0 on a lattice: the paper's initial passes).
     pub staircase_steps: u32,
     /// Step of the staircase relaxation, a fraction of the way to the
     /// neighbours' mean: two half steps remove the corners' spikes without
-    /// the shrinking of a full umbrella step. Default 0.5; range 0 < l <= 1.
+    /// the shrinking of a full umbrella step, on a surface that is not a
+    /// voxel staircase. Default 0.5; range 0 < l <= 1.
     pub staircase_lambda: f64,
+    /// Step of the staircase relaxation on a voxel lattice: a full step
+    /// moves a voxel corner to the mean of its lattice neighbours, and two
+    /// of them bring outer and inner corners of the staircase together onto
+    /// the surface the mask samples, where half steps leave them part of
+    /// the way (the fidelity bound keeps every corner in its dual voxel).
+    /// Default 1; range 0 < l <= 1.
+    pub lattice_staircase_lambda: f64,
     /// A vertex whose adaptive neighbourhood stays within this many rings
     /// lies on the shape, not on the staircase: the curvature changes
     /// within a few rings of it (a gyrus, a thin tube). The initial passes
@@ -149,6 +162,12 @@ pub struct Params {
     /// Adaptive passes of the vertices on the shape (`shape_ring`).
     /// Default 4; range 0..=200 (at least `adaptive_passes`: they make all).
     pub shape_passes: u32,
+    /// `shape_passes` on a voxel lattice. The lattice relaxation has already
+    /// removed the staircase where the curvature changes within a few
+    /// voxels (a gyrus, a sheet two voxels thick), and any pass of fits
+    /// that small moves the surface away from the shape the mask samples.
+    /// Default 0; range 0..=200.
+    pub lattice_shape_passes: u32,
     /// The fidelity bound: how far a vertex may end from its input
     /// position, in its mean input edge lengths. A vertex of a voxel
     /// lattice is held in the box of this half-width along the lattice's
@@ -207,8 +226,10 @@ impl Default for Params {
             max_normal_angle_deg: 60.0,
             staircase_steps: 2,
             staircase_lambda: 0.5,
+            lattice_staircase_lambda: 1.0,
             shape_ring: 2,
             shape_passes: 4,
+            lattice_shape_passes: 0,
             max_displacement: Some(0.5),
             boundary: BoundaryRule::Fixed,
             preserve_volume: true,
@@ -325,7 +346,21 @@ impl Params {
         check_u32("staircase_steps", self.staircase_steps, 0, 10, "0..=10")?;
         let l = self.staircase_lambda;
         check_f64("staircase_lambda", l, l > 0.0 && l <= 1.0, "0 < l <= 1")?;
+        let l = self.lattice_staircase_lambda;
+        check_f64(
+            "lattice_staircase_lambda",
+            l,
+            l > 0.0 && l <= 1.0,
+            "0 < l <= 1",
+        )?;
         check_u32("shape_passes", self.shape_passes, 0, 200, "0..=200")?;
+        check_u32(
+            "lattice_shape_passes",
+            self.lattice_shape_passes,
+            0,
+            200,
+            "0..=200",
+        )?;
         for (field, v, hi, allowed) in [
             ("tolerance_h", self.tolerance_h, 10.0, "0..=10"),
             ("tolerance_k", self.tolerance_k, 10.0, "0..=10"),

@@ -17,7 +17,7 @@ use crate::report::{
 use crate::report::{mean_curvature_variation, measure_stage, mesh_statistics};
 use crate::smoothing::adaptive::{GrowthRule, PassSettings, adaptive_passes, grow_neighbourhoods};
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
-use crate::smoothing::fidelity::{Fidelity, FidelityBound};
+use crate::smoothing::fidelity::{Fidelity, FidelityBound, is_voxel_lattice};
 use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
@@ -152,6 +152,9 @@ struct Run<'a> {
     /// [`movable_mask`].
     movable: &'a [bool],
     params: &'a Params,
+    /// Whether the input is a voxel lattice ([`is_voxel_lattice`]): its
+    /// staircase is relaxed instead of fitted by the initial passes.
+    lattice: bool,
     /// The fidelity bound of the smoothing passes and the volume
     /// restoration ([`Params::max_displacement`]).
     fidelity: &'a Fidelity<'a>,
@@ -291,7 +294,11 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
             min_cos: params.min_normal_cos(),
             fidelity: Some(run.fidelity),
             shape_ring: params.shape_ring.min(u32::from(u8::MAX)) as u8,
-            shape_passes: params.shape_passes,
+            shape_passes: if run.lattice {
+                params.lattice_shape_passes
+            } else {
+                params.shape_passes
+            },
         };
         adaptive_passes(mesh, topo, &mut positions, grown, settings, cancel, |p| {
             progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64)
@@ -320,9 +327,36 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 /// The initial passes (paper section 2.2) on `positions`: their fit
 /// statistics and the input's mean curvature variation, from the first
 /// pass's fits. The staircase relaxation ([`relax_staircase`]) runs between the first
-/// pass, whose fits also give the input's curvature, and the second.
+/// pass, whose fits also give the input's curvature, and the second. On a
+/// voxel lattice the relaxation, over all neighbours, replaces the passes
+/// ([`Params::staircase_steps`]), and the input's curvature comes from the
+/// same 2-ring fits made without moving a vertex.
 fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), Cancelled> {
     let params = run.params;
+    if run.lattice && params.staircase_steps > 0 {
+        let normals = vertex_normals_f32_by_faces(run.mesh, run.topo, positions);
+        let input_curvature = vertex_curvatures(
+            run.topo,
+            positions,
+            &normals,
+            2,
+            params.max_fit_points as usize,
+            params.min_normal_cos(),
+        );
+        relax_staircase(
+            run.mesh,
+            run.topo,
+            positions,
+            run.movable,
+            params.staircase_steps,
+            params.lattice_staircase_lambda,
+            f64::NEG_INFINITY,
+            run.fidelity,
+        );
+        run.progress.update(Stage::Initial, 1.0);
+        let variation = mean_curvature_variation(run.topo, &input_curvature);
+        return Ok((FitStats::default(), variation));
+    }
     let passes = params.initial_passes;
     let some_passes = |positions: &mut [DVec3], n: u32, done: u32, curvature: bool| {
         let plan = InitialPlan {
@@ -531,11 +565,16 @@ pub fn run(
     let quality_bound = bound.as_ref().map(|b| b.widened(QUALITY_ROOM));
     let fidelity = Fidelity::new(bound.as_ref(), mesh.positions());
     let quality_fidelity = fidelity.with_bound(quality_bound.as_ref());
+    let lattice = match &bound {
+        Some(b) => b.has_lattice(),
+        None => params.method == Method::WangYu && is_voxel_lattice(&topo, mesh.positions()),
+    };
     let run = Run {
         mesh,
         topo: &topo,
         movable: &movable,
         params,
+        lattice,
         fidelity: &fidelity,
         quality_bound: quality_bound.as_ref(),
         quality_fidelity: &quality_fidelity,

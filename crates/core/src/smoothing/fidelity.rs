@@ -187,7 +187,6 @@ impl FidelityBound {
     }
 
     /// Whether the mesh was recognised as a voxel lattice.
-    #[cfg(test)]
     pub fn has_lattice(&self) -> bool {
         self.frame.is_some()
     }
@@ -225,6 +224,12 @@ impl FidelityBound {
                 held.store(true, Ordering::Relaxed);
             });
     }
+}
+
+/// Whether `positions` is a voxel lattice (a voxel-boundary mesh, in any
+/// orientation): see [`lattice_frame`].
+pub fn is_voxel_lattice(topo: &Topology, positions: &[DVec3]) -> bool {
+    lattice_frame(topo, positions).is_some()
 }
 
 /// The lattice's three axes, when `positions` has a vertex whose edges run
