@@ -565,6 +565,8 @@ pub fn run(
     let quality_bound = bound.as_ref().map(|b| b.widened(QUALITY_ROOM));
     let fidelity = Fidelity::new(bound.as_ref(), mesh.positions());
     let quality_fidelity = fidelity.with_bound(quality_bound.as_ref());
+    // The bound found the lattice already; without one, only the Wang-Yu
+    // stages ask.
     let lattice = match &bound {
         Some(b) => b.has_lattice(),
         None => params.method == Method::WangYu && is_voxel_lattice(&topo, mesh.positions()),

@@ -4,8 +4,13 @@
 
 use glam::IVec3;
 use meshsmooth_core::shapes::{VoxelMask, voxel_boundary_mesh};
-use meshsmooth_core::{Mesh, NoProgress, Params, run};
+use meshsmooth_core::{Mesh, NoProgress, Params, SmoothOutput, run};
 use std::sync::atomic::AtomicBool;
+
+/// `run` with `params`, no progress and no cancellation.
+fn smooth(mesh: &Mesh, params: &Params) -> SmoothOutput {
+    run(mesh, params, &NoProgress, &AtomicBool::new(false)).unwrap()
+}
 
 /// A one-voxel-thick square plate, 24 x 24 voxels.
 fn thin_plate() -> Mesh {
@@ -26,7 +31,7 @@ fn volume_change(mesh: &Mesh, max_normal_angle_deg: f64) -> f64 {
         staircase_steps: 0,
         ..Params::default()
     };
-    let out = run(mesh, &params, &NoProgress, &AtomicBool::new(false)).unwrap();
+    let out = smooth(mesh, &params);
     let fin = out.report.stages.final_stage.unwrap();
     let change = fin.volume.unwrap().relative_change.unwrap();
     println!("max angle {max_normal_angle_deg}: volume change {change:+.4}");
@@ -48,13 +53,7 @@ fn a_one_voxel_sheet_keeps_its_volume() {
         "the guard should matter: {unguarded} vs {guarded}"
     );
     // With every default the plate keeps its volume too.
-    let out = run(
-        &plate,
-        &Params::default(),
-        &NoProgress,
-        &AtomicBool::new(false),
-    )
-    .unwrap();
+    let out = smooth(&plate, &Params::default());
     let fin = out.report.stages.final_stage.unwrap();
     let change = fin.volume.unwrap().relative_change.unwrap();
     assert!(change.abs() < 0.01, "default plate volume change {change}");
@@ -85,7 +84,7 @@ fn a_cube_is_not_fitted_across_its_edges() {
         staircase_steps: 0,
         ..Params::default()
     };
-    let out = run(&cube(), &params, &NoProgress, &AtomicBool::new(false)).unwrap();
+    let out = smooth(&cube(), &params);
     assert_eq!(out.positions, cube().positions());
     assert!(out.report.warnings.is_empty(), "{:?}", out.report.warnings);
 }
@@ -97,13 +96,7 @@ fn a_lone_voxel_shrinks_within_its_dual_voxels_and_the_report_says_so() {
     // threshold) shrinks toward its centre, each corner within its dual
     // voxel, and the report says the volume could not be restored.
     let input = cube();
-    let out = run(
-        &input,
-        &Params::default(),
-        &NoProgress,
-        &AtomicBool::new(false),
-    )
-    .unwrap();
+    let out = smooth(&input, &Params::default());
     for (p, q) in out.positions.iter().zip(input.positions()) {
         assert!((*p - *q).abs().max_element() <= 0.5 + 1e-9, "{p} from {q}");
         assert!(p.min_element() > 0.0 && p.max_element() < 1.0, "{p}");
@@ -127,7 +120,7 @@ fn a_volume_that_cannot_be_restored_is_reported() {
         staircase_steps: 0,
         ..Params::default()
     };
-    let out = run(&cube(), &params, &NoProgress, &AtomicBool::new(false)).unwrap();
+    let out = smooth(&cube(), &params);
     assert!(
         out.report
             .warnings
@@ -138,12 +131,6 @@ fn a_volume_that_cannot_be_restored_is_reported() {
     );
     // A well-sampled closed surface has nothing to warn about.
     let (_, sphere) = meshsmooth_core::shapes::voxel_sphere(8.0);
-    let out = run(
-        &sphere,
-        &Params::default(),
-        &NoProgress,
-        &AtomicBool::new(false),
-    )
-    .unwrap();
+    let out = smooth(&sphere, &Params::default());
     assert!(out.report.warnings.is_empty(), "{:?}", out.report.warnings);
 }
