@@ -143,9 +143,13 @@ def mean_curvature(verts, faces, adj):
         beta, *_ = np.linalg.lstsq(m, z, rcond=None)
         a, b, c, e, f = beta[:5]
         ee, ff, gg = 1 + e * e, e * f, 1 + f * f
-        r = math.sqrt(1 + e * e + f * f)
+        r2 = 1 + e * e + f * f
+        r = math.sqrt(r2)
         l, mm, nn = 2 * a / r, b / r, 2 * c / r
-        h[i] = (ee * nn - 2 * ff * mm + gg * l) / (2 * (ee * gg - ff * ff))
+        # E G - F^2 = 1 + e^2 + f^2, written so: the product form cancels to
+        # zero when a near-degenerate ring makes the slopes huge.
+        hi = (ee * nn - 2 * ff * mm + gg * l) / (2 * r2)
+        h[i] = hi if math.isfinite(hi) else 0.0
     return h
 
 

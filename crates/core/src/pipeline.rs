@@ -123,15 +123,33 @@ pub struct SmoothOutput {
     pub per_vertex: PerVertex,
 }
 
-/// Which vertices may move: not isolated, not non-manifold, and not on the
+/// Components of at most this many vertices stay where they are: the
+/// quadric of section 2.1 has six coefficients, and on so small a piece no
+/// vertex has the six other points a fit needs. A fit there falls back to
+/// a plane through the vertex's neighbours, and a plane through a
+/// tetrahedron's other three corners folds it flat and through itself (the
+/// specks that segmentation meshes of neurons carry).
+pub const MAX_FIXED_COMPONENT: u32 = 6;
+
+/// Which vertices may move: not isolated, not non-manifold, not on a
+/// component too small to fit ([`MAX_FIXED_COMPONENT`]), and not on the
 /// boundary unless the boundary rule lets them move along their normal.
 pub fn movable_mask(topo: &Topology, boundary: BoundaryRule) -> Vec<bool> {
+    vertex_mask(topo, boundary, false)
+}
+
+/// [`movable_mask`], with the non-manifold vertices movable if
+/// `non_manifold` (on a voxel lattice's relaxation).
+fn vertex_mask(topo: &Topology, boundary: BoundaryRule, non_manifold: bool) -> Vec<bool> {
     topo.kinds()
         .iter()
-        .map(|k| match k {
+        .zip(topo.component_sizes())
+        .map(|(k, size)| match k {
+            _ if size <= MAX_FIXED_COMPONENT => false,
             VertexKind::Interior => true,
             VertexKind::Boundary => boundary == BoundaryRule::NormalOnly,
-            VertexKind::NonManifold | VertexKind::Isolated => false,
+            VertexKind::NonManifold => non_manifold,
+            VertexKind::Isolated => false,
         })
         .collect()
 }
@@ -343,11 +361,15 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             params.max_fit_points as usize,
             params.min_normal_cos(),
         );
+        // Where voxels touch only along an edge or at a corner, the shared
+        // corner is as much a staircase corner as any other: held where it
+        // was it would pin both sheets to the lattice.
+        let movable = vertex_mask(run.topo, params.boundary, true);
         relax_staircase(
             run.mesh,
             run.topo,
             positions,
-            run.movable,
+            &movable,
             params.staircase_steps,
             params.lattice_staircase_lambda,
             f64::NEG_INFINITY,

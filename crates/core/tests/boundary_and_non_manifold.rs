@@ -1,6 +1,8 @@
 //! Documented behaviour at boundary and non-manifold vertices: with the
-//! default `boundary: fixed` they do not move; with `normal_only` boundary
-//! vertices move along their normal only; nothing explodes, nothing tears.
+//! default `boundary: fixed` they do not move (but for the non-manifold
+//! corners of a voxel lattice, relaxed within their dual voxels); with
+//! `normal_only` boundary vertices move along their normal only; components
+//! too small to fit stay; nothing explodes, nothing tears.
 
 use glam::DVec3;
 use meshsmooth_core::params::BoundaryRule;
@@ -119,6 +121,7 @@ fn voxels_touching_along_an_edge_keep_their_pinch() {
     let t = Topology::build(&m);
     assert!(t.num_non_manifold_edges() > 0);
     let out = smooth(&m, &Params::default());
+    let mut non_manifold_moved = 0;
     // A smoothed block rounds its corners; nothing may move by half a block.
     let half_block = 2.5;
     for (v, (a, b)) in out.iter().zip(m.positions()).enumerate() {
@@ -129,8 +132,61 @@ fn voxels_touching_along_an_edge_keep_their_pinch() {
             t.kind(v),
             a.distance(*b)
         );
+        // The shared edge is a staircase edge like any other: the
+        // relaxation moves its vertices too, but only within their dual
+        // voxels, so the blocks still meet there.
         if t.kind(v) == VertexKind::NonManifold {
-            assert_eq!(a, b, "non-manifold vertex {v} moved");
+            let d = (*a - *b).abs().max_element();
+            assert!(d <= 0.5 + 1e-9, "non-manifold vertex {v} moved {d}");
+            non_manifold_moved += usize::from(d > 0.05);
         }
+    }
+    // The edge's ends are block corners: they round with the blocks.
+    assert!(non_manifold_moved >= 2, "{non_manifold_moved}");
+}
+
+#[test]
+fn a_component_too_small_to_fit_stays_where_it_is() {
+    // A voxel block and, apart from it, a tetrahedron: no vertex of the
+    // tetrahedron has the points a quadric fit needs, and a plane through
+    // its other three corners would fold it.
+    let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [8, 8, 8], |i, j, k| {
+        (1..6).contains(&i) && (1..6).contains(&j) && (1..6).contains(&k)
+    });
+    let block = voxel_boundary_mesh(&mask);
+    let mut p = block.positions().to_vec();
+    let mut f: Vec<Vec<u32>> = (0..block.num_faces())
+        .map(|i| block.face(i).to_vec())
+        .collect();
+    let o = p.len() as u32;
+    p.extend([
+        DVec3::new(20.0, 0.0, 0.0),
+        DVec3::new(21.0, 0.0, 0.0),
+        DVec3::new(20.3, 1.0, 0.0),
+        DVec3::new(20.4, 0.4, 0.9),
+    ]);
+    f.extend([
+        vec![o, o + 2, o + 1],
+        vec![o, o + 1, o + 3],
+        vec![o + 1, o + 2, o + 3],
+        vec![o + 2, o, o + 3],
+    ]);
+    let mesh = Mesh::from_polygons(p, &f).unwrap();
+    for params in [
+        Params::default(),
+        Params {
+            max_displacement: None,
+            ..Params::default()
+        },
+    ] {
+        let out = smooth(&mesh, &params);
+        assert_eq!(&out[o as usize..], &mesh.positions()[o as usize..]);
+        // The block itself is smoothed.
+        assert!(
+            out[..o as usize]
+                .iter()
+                .zip(mesh.positions())
+                .any(|(a, b)| a != b)
+        );
     }
 }

@@ -234,8 +234,30 @@ impl Topology {
     /// Connected components of the vertex graph, not counting isolated
     /// vertices.
     pub fn num_components(&self) -> usize {
-        let n = self.num_vertices();
-        let mut parent: Vec<u32> = (0..n as u32).collect();
+        let parent = self.component_roots();
+        let isolated = self.count_kind(VertexKind::Isolated);
+        parent
+            .iter()
+            .enumerate()
+            .filter(|&(i, &p)| p as usize == i)
+            .count()
+            - isolated
+    }
+
+    /// For each vertex, the number of vertices of its connected component
+    /// (1 for an isolated vertex).
+    pub fn component_sizes(&self) -> Vec<u32> {
+        let roots = self.component_roots();
+        let mut size = vec![0u32; roots.len()];
+        for &r in &roots {
+            size[r as usize] += 1;
+        }
+        roots.iter().map(|&r| size[r as usize]).collect()
+    }
+
+    /// Each vertex's component as one root vertex (union-find over the
+    /// edges, paths compressed so every entry is its root).
+    fn component_roots(&self) -> Vec<u32> {
         fn find(p: &mut [u32], mut i: usize) -> usize {
             while p[i] as usize != i {
                 p[i] = p[p[i] as usize];
@@ -243,7 +265,8 @@ impl Topology {
             }
             i
         }
-        let mut components = n - self.count_kind(VertexKind::Isolated);
+        let n = self.num_vertices();
+        let mut parent: Vec<u32> = (0..n as u32).collect();
         for e in &self.edges {
             let (a, b) = (
                 find(&mut parent, e[0] as usize),
@@ -251,10 +274,12 @@ impl Topology {
             );
             if a != b {
                 parent[a] = b as u32;
-                components -= 1;
             }
         }
-        components
+        for i in 0..n {
+            parent[i] = find(&mut parent, i) as u32;
+        }
+        parent
     }
 }
 

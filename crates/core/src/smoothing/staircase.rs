@@ -17,10 +17,11 @@ use glam::DVec3;
 use rayon::prelude::*;
 
 /// `steps` Jacobi steps `p += lambda (mean of neighbours - p)` on the
-/// `movable` interior vertices of `positions` (one per vertex, moved in
-/// place), each followed by `fidelity`. Boundary vertices stay: the step
-/// is tangential too, and a boundary vertex may at most move along its
-/// normal. Like the fits, the mean leaves out neighbours whose normal
+/// `movable` vertices of `positions` (one per vertex, moved in place),
+/// each followed by `fidelity`. Boundary vertices stay whatever `movable`
+/// says: the step is tangential too, and a boundary vertex may at most move
+/// along its normal. A movable non-manifold vertex moves to the mean of
+/// all its fans' neighbours. Like the fits, the mean leaves out neighbours whose normal
 /// turns from the vertex's by a cosine below `min_cos` (the far side of a
 /// thin sheet, the other face of a cube's edge). Deterministic and
 /// parallel per vertex.
@@ -48,7 +49,7 @@ pub fn relax_staircase(
             .with_min_len(4096)
             .for_each(|(v, p)| {
                 let nb = topo.neighbors(v);
-                if !movable[v] || nb.is_empty() || topo.kind(v) != VertexKind::Interior {
+                if !movable[v] || nb.is_empty() || topo.kind(v) == VertexKind::Boundary {
                     return;
                 }
                 let n = normals[v].as_dvec3();
