@@ -132,7 +132,9 @@ pub struct Params {
     /// relaxation replaces the initial passes: `lattice_staircase_lambda`
     /// steps over all neighbours remove the staircase, and quadric fits
     /// made on the staircase itself (in frames tilted along its diagonals)
-    /// would only pull the corners back toward it. On any other mesh the
+    /// would only pull the corners back toward it; the corners where voxels
+    /// touch along an edge or at a corner (non-manifold vertices, which no
+    /// other step moves) relax with the rest. On any other mesh the
     /// steps (`staircase_lambda`, facing neighbours only) run between the
     /// first and the second initial pass, so the later fits are made in
     /// frames that follow the surface (needs at least 2 initial passes).
