@@ -155,11 +155,12 @@ def mean_curvature(verts, faces, adj):
 
 def curvature_variation(verts, faces, adj, edge_len):
     """Mean over vertices of the largest 1-ring difference of H, times the
-    mean edge length. |H| is capped at that of a sphere of half an edge's
-    radius, the tightest a mesh of this edge length can show: a ring whose
-    points nearly coincide (a sheet collapsed onto itself) fits an
-    arbitrarily large H, and one such vertex would decide the mean."""
-    h = np.clip(mean_curvature(verts, faces, adj), -2.0 / edge_len, 2.0 / edge_len)
+    mean edge length. |H| is capped at that of a sphere of a tenth of an
+    edge's radius, far tighter than any surface a mesh of this edge length
+    shows: a ring whose points nearly coincide (a sheet collapsed onto
+    itself) fits an arbitrarily large H, and one such vertex would decide
+    the mean. Sane fits stay below the cap."""
+    h = np.clip(mean_curvature(verts, faces, adj), -10.0 / edge_len, 10.0 / edge_len)
     a = adj.tocoo()
     diff = np.abs(h[a.row] - h[a.col])
     mx = np.zeros(len(verts))
