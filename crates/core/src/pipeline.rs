@@ -154,6 +154,23 @@ fn vertex_mask(topo: &Topology, boundary: BoundaryRule, non_manifold: bool) -> V
         .collect()
 }
 
+/// `movable` without the vertices next to a non-manifold one: on a voxel
+/// lattice their fitting rings run through the pinch into the other sheet,
+/// and the adaptive passes leave them where the relaxation put them.
+fn beside_non_manifold(topo: &Topology, movable: &[bool]) -> Vec<bool> {
+    (0..topo.num_vertices())
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|v| {
+            movable[v]
+                && !topo
+                    .neighbors(v)
+                    .iter()
+                    .any(|&j| topo.kind(j as usize) == VertexKind::NonManifold)
+        })
+        .collect()
+}
+
 /// How much farther than the fidelity bound the quality fixes may take a
 /// vertex, as a ball of this many times the bound's size: the smoothing
 /// passes leave vertices against the walls of their dual voxels (a thin
@@ -302,6 +319,13 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
         );
         release_free_memory();
         let passes = params.adaptive_passes;
+        let beside_pinch;
+        let movable = if run.lattice {
+            beside_pinch = beside_non_manifold(topo, movable);
+            &beside_pinch[..]
+        } else {
+            movable
+        };
         let settings = PassSettings {
             movable,
             passes,
@@ -888,5 +912,35 @@ fn baseline(
             b.lambda,
             cancel,
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shapes::{VoxelMask, voxel_boundary_mesh};
+
+    #[test]
+    fn the_adaptive_passes_leave_the_vertices_beside_a_pinch() {
+        // Two blocks touching only along an edge.
+        let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [14, 14, 7], |i, j, k| {
+            (1..6).contains(&k)
+                && ((1..6).contains(&i) && (1..6).contains(&j)
+                    || (6..11).contains(&i) && (6..11).contains(&j))
+        });
+        let mesh = voxel_boundary_mesh(&mask);
+        let topo = Topology::build(&mesh);
+        let movable = movable_mask(&topo, BoundaryRule::Fixed);
+        let kept = beside_non_manifold(&topo, &movable);
+        let mut beside = 0;
+        for v in 0..topo.num_vertices() {
+            let near = topo
+                .neighbors(v)
+                .iter()
+                .any(|&j| topo.kind(j as usize) == VertexKind::NonManifold);
+            beside += usize::from(near && movable[v]);
+            assert_eq!(kept[v], movable[v] && !near, "vertex {v}");
+        }
+        assert!(beside > 0);
     }
 }
