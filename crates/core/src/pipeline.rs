@@ -135,29 +135,43 @@ pub const MAX_FIXED_COMPONENT: u32 = 6;
 /// component too small to fit ([`MAX_FIXED_COMPONENT`]), and not on the
 /// boundary unless the boundary rule lets them move along their normal.
 pub fn movable_mask(topo: &Topology, boundary: BoundaryRule) -> Vec<bool> {
-    vertex_mask(topo, boundary, false)
+    vertex_masks(topo, boundary).movable
 }
 
-/// [`movable_mask`], with the non-manifold vertices movable if
-/// `non_manifold` (on a voxel lattice's relaxation).
-fn vertex_mask(topo: &Topology, boundary: BoundaryRule, non_manifold: bool) -> Vec<bool> {
-    topo.kinds()
+/// The vertices each step may move.
+struct VertexMasks {
+    /// [`movable_mask`].
+    movable: Vec<bool>,
+    /// `movable` and the non-manifold vertices of components large enough
+    /// to fit: the voxel lattice's relaxation moves those too.
+    relaxable: Vec<bool>,
+}
+
+/// Both [`VertexMasks`] from one pass over the vertices (and one
+/// union-find for the component sizes).
+fn vertex_masks(topo: &Topology, boundary: BoundaryRule) -> VertexMasks {
+    let (movable, relaxable) = topo
+        .kinds()
         .iter()
         .zip(topo.component_sizes())
         .map(|(k, size)| match k {
-            _ if size <= MAX_FIXED_COMPONENT => false,
-            VertexKind::Interior => true,
-            VertexKind::Boundary => boundary == BoundaryRule::NormalOnly,
-            VertexKind::NonManifold => non_manifold,
-            VertexKind::Isolated => false,
+            _ if size <= MAX_FIXED_COMPONENT => (false, false),
+            VertexKind::Interior => (true, true),
+            VertexKind::Boundary => {
+                let normal_only = boundary == BoundaryRule::NormalOnly;
+                (normal_only, normal_only)
+            }
+            VertexKind::NonManifold => (false, true),
+            VertexKind::Isolated => (false, false),
         })
-        .collect()
+        .unzip();
+    VertexMasks { movable, relaxable }
 }
 
 /// `movable` without the vertices next to a non-manifold one: on a voxel
 /// lattice their fitting rings run through the pinch into the other sheet,
 /// and the adaptive passes leave them where the relaxation put them.
-fn beside_non_manifold(topo: &Topology, movable: &[bool]) -> Vec<bool> {
+fn away_from_pinches(topo: &Topology, movable: &[bool]) -> Vec<bool> {
     (0..topo.num_vertices())
         .into_par_iter()
         .with_min_len(4096)
@@ -186,6 +200,8 @@ struct Run<'a> {
     topo: &'a Topology,
     /// [`movable_mask`].
     movable: &'a [bool],
+    /// [`VertexMasks::relaxable`].
+    relaxable: &'a [bool],
     params: &'a Params,
     /// Whether the input is a voxel lattice ([`is_voxel_lattice`]): its
     /// staircase is relaxed instead of fitted by the initial passes.
@@ -319,10 +335,10 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
         );
         release_free_memory();
         let passes = params.adaptive_passes;
-        let beside_pinch;
+        let away;
         let movable = if run.lattice {
-            beside_pinch = beside_non_manifold(topo, movable);
-            &beside_pinch[..]
+            away = away_from_pinches(topo, movable);
+            &away[..]
         } else {
             movable
         };
@@ -388,12 +404,11 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
         // Where voxels touch only along an edge or at a corner, the shared
         // corner is as much a staircase corner as any other: held where it
         // was it would pin both sheets to the lattice.
-        let movable = vertex_mask(run.topo, params.boundary, true);
         relax_staircase(
             run.mesh,
             run.topo,
             positions,
-            &movable,
+            run.relaxable,
             params.staircase_steps,
             params.lattice_staircase_lambda,
             f64::NEG_INFINITY,
@@ -601,7 +616,7 @@ pub fn run(
     let _enter = span.enter();
     let mut timings = Timings::default();
     progress.update(Stage::Analyse, 0.0);
-    let (topo, movable, mut report) = timings.time(Stage::Analyse, || analyse(mesh, params))?;
+    let (topo, masks, mut report) = timings.time(Stage::Analyse, || analyse(mesh, params))?;
     progress.update(Stage::Analyse, 1.0);
     check(cancel)?;
     let bound = params
@@ -620,7 +635,8 @@ pub fn run(
     let run = Run {
         mesh,
         topo: &topo,
-        movable: &movable,
+        movable: &masks.movable,
+        relaxable: &masks.relaxable,
         params,
         lattice,
         fidelity: &fidelity,
@@ -640,7 +656,7 @@ pub fn run(
         Method::Laplacian | Method::Taubin => {
             let positions = timings.time(Stage::Initial, || {
                 let _s = tracing::info_span!("baseline").entered();
-                baseline(mesh, &topo, &movable, params, cancel)
+                baseline(mesh, &topo, &masks.movable, params, cancel)
             })?;
             report.stages.initial = Some(measure_stage(
                 mesh,
@@ -714,23 +730,28 @@ impl PerVertex {
     }
 }
 
-/// The analyse stage: topology, the movable vertices, and a report with
-/// the mesh statistics and the input's measures.
+/// The analyse stage: topology, the vertices each step may move, and a
+/// report with the mesh statistics and the input's measures.
 fn analyse(
     mesh: &Mesh,
     params: &Params,
-) -> Result<(Topology, Vec<bool>, QualityReport), ShapeError> {
+) -> Result<(Topology, VertexMasks, QualityReport), ShapeError> {
     let input = mesh.positions();
     let topo = Topology::build(mesh);
     check_shape(mesh, &topo)?;
-    let movable = movable_mask(&topo, params.boundary);
     // Wang-Yu's first initial pass fits the input's 2-rings anyway: the
     // input's curvature variation comes from those fits.
     let input_curvature =
         (params.method != Method::WangYu).then(|| stage_curvature(mesh, &topo, input, params));
-    // The statistics' union-find is serial: it runs beside the measures.
-    let (statistics, input_measures) = rayon::join(
-        || mesh_statistics(mesh, &topo),
+    // The statistics' and the masks' union-finds are serial: they run
+    // beside the measures.
+    let ((statistics, masks), input_measures) = rayon::join(
+        || {
+            (
+                mesh_statistics(mesh, &topo),
+                vertex_masks(&topo, params.boundary),
+            )
+        },
         || {
             measure_stage(
                 mesh,
@@ -744,7 +765,7 @@ fn analyse(
     );
     let mut report = QualityReport::new(statistics, Reproducibility::new(params));
     report.stages.input = Some(input_measures);
-    Ok((topo, movable, report))
+    Ok((topo, masks, report))
 }
 
 /// Puts the Wang-Yu stages' results in `report` (the input's curvature
@@ -931,7 +952,7 @@ mod tests {
         let mesh = voxel_boundary_mesh(&mask);
         let topo = Topology::build(&mesh);
         let movable = movable_mask(&topo, BoundaryRule::Fixed);
-        let kept = beside_non_manifold(&topo, &movable);
+        let kept = away_from_pinches(&topo, &movable);
         let mut beside = 0;
         for v in 0..topo.num_vertices() {
             let near = topo

@@ -12,6 +12,18 @@ fn smooth(mesh: &Mesh, params: &Params) -> SmoothOutput {
     run(mesh, params, &NoProgress, &AtomicBool::new(false)).unwrap()
 }
 
+/// Fails unless the report warns that the volume could not be restored.
+fn assert_unrestored(out: &SmoothOutput) {
+    assert!(
+        out.report
+            .warnings
+            .iter()
+            .any(|w| w.contains("could not be restored")),
+        "{:?}",
+        out.report.warnings
+    );
+}
+
 /// A one-voxel-thick square plate, 24 x 24 voxels.
 fn thin_plate() -> Mesh {
     let mask = VoxelMask::from_fn(IVec3::ZERO, [28, 28, 5], |i, j, k| {
@@ -101,14 +113,7 @@ fn a_lone_voxel_shrinks_within_its_dual_voxels_and_the_report_says_so() {
         assert!((*p - *q).abs().max_element() <= 0.5 + 1e-9, "{p} from {q}");
         assert!(p.min_element() > 0.0 && p.max_element() < 1.0, "{p}");
     }
-    assert!(
-        out.report
-            .warnings
-            .iter()
-            .any(|w| w.contains("could not be restored")),
-        "{:?}",
-        out.report.warnings
-    );
+    assert_unrestored(&out);
 }
 
 #[test]
@@ -121,14 +126,7 @@ fn a_volume_that_cannot_be_restored_is_reported() {
         ..Params::default()
     };
     let out = smooth(&cube(), &params);
-    assert!(
-        out.report
-            .warnings
-            .iter()
-            .any(|w| w.contains("could not be restored")),
-        "{:?}",
-        out.report.warnings
-    );
+    assert_unrestored(&out);
     // A well-sampled closed surface has nothing to warn about.
     let (_, sphere) = meshsmooth_core::shapes::voxel_sphere(8.0);
     let out = smooth(&sphere, &Params::default());

@@ -21,10 +21,10 @@ use rayon::prelude::*;
 /// each followed by `fidelity`. Boundary vertices stay whatever `movable`
 /// says: the step is tangential too, and a boundary vertex may at most move
 /// along its normal. A movable non-manifold vertex moves to the mean of
-/// all its fans' neighbours. Like the fits, the mean leaves out neighbours whose normal
-/// turns from the vertex's by a cosine below `min_cos` (the far side of a
-/// thin sheet, the other face of a cube's edge). Deterministic and
-/// parallel per vertex.
+/// all its fans' neighbours. Like the fits, the mean leaves out neighbours
+/// whose normal turns from the vertex's by a cosine below `min_cos` (the
+/// far side of a thin sheet, the other face of a cube's edge).
+/// Deterministic and parallel per vertex.
 #[allow(clippy::too_many_arguments)]
 pub fn relax_staircase(
     mesh: &Mesh,
