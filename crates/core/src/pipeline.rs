@@ -9,7 +9,7 @@ use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length, signed_volume};
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
-use crate::quality::{defect_count, improve};
+use crate::quality::{improve, is_defective};
 use crate::report::{CurvatureVariation, QualityReport, StageMeasures};
 use crate::report::{
     LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
@@ -838,15 +838,80 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
         && topo.num_boundary_edges() == 0
         && summary.volume_offset != 0.0
     {
-        let defects = defect_count(mesh, positions, input);
         summary.volume_offset +=
-            restore_input_volume(run, positions, MAX_VOLUME_REOFFSET, |moved| {
-                run.quality_bound.is_none_or(|b| b.allows_all(input, moved))
-                    && defect_count(mesh, moved, input) <= defects
-            });
+            restore_where_safe(mesh, topo, positions, run.movable, run.quality_bound);
     }
     run.quality_fidelity.apply(positions);
     run.progress.update(Stage::Quality, 1.0);
+}
+
+/// Rounds of the volume restoration after the quality fixes
+/// ([`restore_where_safe`]): each round leaves out the vertices the
+/// previous round's offset could not move; a few rounds reach the faces
+/// around the first ones left out.
+const REOFFSET_ROUNDS: usize = 4;
+
+/// Restores the input's volume after the quality fixes by an offset of at
+/// most [`MAX_VOLUME_REOFFSET`] of the mean edge length, over the movable
+/// vertices whose move folds or twists no face that was sound and keeps
+/// them within the quality bound: a round that would fold a face or leave
+/// the bound leaves that face's corners (or that vertex) where they are and
+/// solves again, up to [`REOFFSET_ROUNDS`] rounds. The offset applied, 0
+/// when no round succeeded (the positions are then unchanged). A thin
+/// neurite's few near-degenerate faces would otherwise keep the whole
+/// surface from its volume.
+fn restore_where_safe(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &mut [DVec3],
+    movable: &[bool],
+    quality_bound: Option<&FidelityBound>,
+) -> f64 {
+    let input = mesh.positions();
+    let sound: Vec<bool> = (0..mesh.num_faces())
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|f| !is_defective(mesh, f, positions, input))
+        .collect();
+    let max_offset = MAX_VOLUME_REOFFSET * mean_edge_length(mesh, positions);
+    let target = mesh.signed_volume();
+    let mut movable = movable.to_vec();
+    let mut trial = positions.to_vec();
+    for _ in 0..REOFFSET_ROUNDS {
+        trial.copy_from_slice(positions);
+        let offset = restore_volume(mesh, topo, &mut trial, &movable, target, max_offset, |_| {
+            true
+        });
+        if offset == 0.0 {
+            return 0.0;
+        }
+        let folded: Vec<usize> = (0..mesh.num_faces())
+            .into_par_iter()
+            .with_min_len(4096)
+            .filter(|&f| sound[f] && is_defective(mesh, f, &trial, input))
+            .collect();
+        let outside: Vec<usize> = match quality_bound {
+            Some(b) => (0..trial.len())
+                .into_par_iter()
+                .with_min_len(4096)
+                .filter(|&v| !b.allows(v, input[v], trial[v]))
+                .collect(),
+            None => Vec::new(),
+        };
+        if folded.is_empty() && outside.is_empty() {
+            positions.copy_from_slice(&trial);
+            return offset;
+        }
+        for f in folded {
+            for &c in mesh.face(f) {
+                movable[c as usize] = false;
+            }
+        }
+        for v in outside {
+            movable[v] = false;
+        }
+    }
+    0.0
 }
 
 /// Warnings on the final stage: a volume that ends far from the input's
@@ -963,5 +1028,54 @@ mod tests {
             assert_eq!(kept[v], movable[v] && !near, "vertex {v}");
         }
         assert!(beside > 0);
+    }
+
+    #[test]
+    fn the_last_restoration_holds_back_what_it_cannot_move() {
+        let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [6, 6, 6], |i, j, k| {
+            (1..5).contains(&i) && (1..5).contains(&j) && (1..5).contains(&k)
+        });
+        let mesh = voxel_boundary_mesh(&mask);
+        let topo = Topology::build(&mesh);
+        let movable = movable_mask(&topo, BoundaryRule::Fixed);
+        let input = mesh.positions();
+        let target = mesh.signed_volume();
+        let centre = DVec3::splat(3.0);
+        let shrunk: Vec<DVec3> = input
+            .iter()
+            .map(|&p| centre + 0.97 * (p - centre))
+            .collect();
+        let volume = |p: &[DVec3]| signed_volume(&mesh, p);
+
+        // Free to move: the volume comes back.
+        let mut p = shrunk.clone();
+        let offset = restore_where_safe(&mesh, &topo, &mut p, &movable, None);
+        assert!(offset > 0.0);
+        assert!((volume(&p) - target).abs() < 1e-6 * target);
+
+        // A corner already at the outer edge of its bound (a tenth of an
+        // edge) stays; the others make up for it.
+        let bound = FidelityBound::new(&mesh, &topo, 0.1);
+        let corner = (0..input.len())
+            .find(|&v| input[v] == DVec3::splat(1.0))
+            .unwrap();
+        let mut p = shrunk.clone();
+        p[corner] = input[corner] - DVec3::splat(0.0999);
+        let before = p.clone();
+        let offset = restore_where_safe(&mesh, &topo, &mut p, &movable, Some(&bound));
+        assert!(offset > 0.0);
+        assert_eq!(p[corner], before[corner]);
+        assert!((volume(&p) - target).abs() < 1e-6 * target);
+        assert!((0..p.len()).all(|v| bound.allows(v, input[v], p[v])));
+
+        // Every vertex beyond its bound: nothing moves.
+        let bound = FidelityBound::new(&mesh, &topo, 0.01);
+        let mut p = shrunk.clone();
+        let before = p.clone();
+        assert_eq!(
+            restore_where_safe(&mesh, &topo, &mut p, &movable, Some(&bound)),
+            0.0
+        );
+        assert_eq!(p, before);
     }
 }

@@ -142,18 +142,10 @@ pub fn improve(
     }
 }
 
-/// Faces that are inverted relative to `input` or are twisted quads, at
-/// `positions` (faces with a repeated corner are not counted).
-pub fn defect_count(mesh: &Mesh, positions: &[DVec3], input: &[DVec3]) -> u64 {
-    use rayon::prelude::*;
-    (0..mesh.num_faces())
-        .into_par_iter()
-        .with_min_len(4096)
-        .filter(|&f| {
-            let face = mesh.face(f);
-            !local::has_repeated_corner(face)
-                && (local::is_inverted(face, positions, input)
-                    || local::is_twisted(face, positions))
-        })
-        .count() as u64
+/// Whether face `f` is inverted relative to `input` or a twisted quad at
+/// `positions` (a face with a repeated corner never is).
+pub fn is_defective(mesh: &Mesh, f: usize, positions: &[DVec3], input: &[DVec3]) -> bool {
+    let face = mesh.face(f);
+    !local::has_repeated_corner(face)
+        && (local::is_inverted(face, positions, input) || local::is_twisted(face, positions))
 }

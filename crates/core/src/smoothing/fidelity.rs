@@ -175,17 +175,6 @@ impl FidelityBound {
         }
     }
 
-    /// Whether every vertex of `positions` is within the bound around its
-    /// `input` position.
-    pub fn allows_all(&self, input: &[DVec3], positions: &[DVec3]) -> bool {
-        positions
-            .par_iter()
-            .zip(input)
-            .enumerate()
-            .with_min_len(4096)
-            .all(|(v, (&p, &o))| self.allows(v, o, p))
-    }
-
     /// Whether the mesh was recognised as a voxel lattice.
     pub fn has_lattice(&self) -> bool {
         self.frame.is_some()
