@@ -1004,17 +1004,11 @@ fn baseline(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::shapes::{VoxelMask, voxel_boundary_mesh};
+    use crate::shapes::{self, VoxelMask, voxel_boundary_mesh};
 
     #[test]
     fn the_adaptive_passes_leave_the_vertices_beside_a_pinch() {
-        // Two blocks touching only along an edge.
-        let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [14, 14, 7], |i, j, k| {
-            (1..6).contains(&k)
-                && ((1..6).contains(&i) && (1..6).contains(&j)
-                    || (6..11).contains(&i) && (6..11).contains(&j))
-        });
-        let mesh = voxel_boundary_mesh(&mask);
+        let mesh = shapes::edge_touching_blocks();
         let topo = Topology::build(&mesh);
         let movable = movable_mask(&topo, BoundaryRule::Fixed);
         let kept = away_from_pinches(&topo, &movable);

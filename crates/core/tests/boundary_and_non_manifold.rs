@@ -6,7 +6,7 @@
 
 use glam::DVec3;
 use meshsmooth_core::params::BoundaryRule;
-use meshsmooth_core::shapes::{VoxelMask, voxel_boundary_mesh};
+use meshsmooth_core::shapes::{self, VoxelMask, voxel_boundary_mesh};
 use meshsmooth_core::{Mesh, NoProgress, Params, Topology, VertexKind, run};
 use std::sync::atomic::AtomicBool;
 
@@ -110,14 +110,7 @@ fn normal_only_boundary_moves_along_the_normal() {
 
 #[test]
 fn voxels_touching_along_an_edge_keep_their_pinch() {
-    // Two 5x5x5 blocks touching only along one edge: a non-manifold edge
-    // shared by four faces.
-    let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [14, 14, 7], |i, j, k| {
-        (1..6).contains(&k)
-            && ((1..6).contains(&i) && (1..6).contains(&j)
-                || (6..11).contains(&i) && (6..11).contains(&j))
-    });
-    let m = voxel_boundary_mesh(&mask);
+    let m = shapes::edge_touching_blocks();
     let t = Topology::build(&m);
     assert!(t.num_non_manifold_edges() > 0);
     let out = smooth(&m, &Params::default());

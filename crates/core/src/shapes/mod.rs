@@ -16,8 +16,8 @@ mod voxel;
 
 pub use marching_cubes::marching_cubes_mesh;
 pub use segmentation::{
-    FoldedSheet, Placed, Shell, SpherePair, folded_sheet, placed, placement, shell, sphere_pair,
-    tube,
+    FoldedSheet, Placed, Shell, SpherePair, edge_touching_blocks, folded_sheet, placed, placement,
+    shell, sphere_pair, tube,
 };
 pub use voxel::{VOXEL_MARGIN, VoxelMask, voxel_boundary_mesh, voxel_mask};
 

@@ -4,8 +4,9 @@
 //! offsets and rotations) so a result is judged over where the grid falls,
 //! not at one lucky placement.
 
-use super::{Shape, Sphere, Torus};
-use glam::{DMat3, DQuat, DVec3};
+use super::{Shape, Sphere, Torus, VoxelMask, voxel_boundary_mesh};
+use crate::mesh::Mesh;
+use glam::{DMat3, DQuat, DVec3, IVec3};
 
 /// The solid between two concentric spheres: a closed sheet
 /// `outer - inner` voxels thick.
@@ -297,6 +298,18 @@ pub fn folded_sheet(thickness: f64) -> FoldedSheet {
         half_length: 16.0,
         half_width: 10.0,
     }
+}
+
+/// The voxel-boundary mesh of two 5 x 5 x 5 blocks of voxels that touch
+/// only along one edge: a non-manifold edge shared by four faces, the
+/// smallest of the contacts a segmentation mask makes.
+pub fn edge_touching_blocks() -> Mesh {
+    let mask = VoxelMask::from_fn(IVec3::ZERO, [14, 14, 7], |i, j, k| {
+        (1..6).contains(&k)
+            && ((1..6).contains(&i) && (1..6).contains(&j)
+                || (6..11).contains(&i) && (6..11).contains(&j))
+    });
+    voxel_boundary_mesh(&mask)
 }
 
 #[cfg(test)]
