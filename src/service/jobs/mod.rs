@@ -355,8 +355,9 @@ impl Job {
         }
     }
 
-    fn finish(&self, outcome: Outcome) -> Instant {
-        let finished = Instant::now();
+    /// Moves the job to its final state, as of `finished`, and wakes its
+    /// waiters.
+    fn finish(&self, outcome: Outcome, finished: Instant) {
         {
             let mut state = lock(&self.state);
             let started = match &*state {
@@ -376,7 +377,6 @@ impl Job {
         }
         *lock(&self.document) = None;
         self.notify();
-        finished
     }
 
     fn evict_result(&self) {
@@ -892,7 +892,7 @@ impl Inner {
     fn finish(&self, job: &Arc<Job>, outcome: Outcome) {
         if let (Backend::Redis(store), Some(claim)) = (&self.backend, &job.claim) {
             worker::file_shared(self, store, job, claim, &outcome);
-            job.finish(outcome);
+            job.finish(outcome, Instant::now());
             lock(&self.store).remove(&job.id);
             return;
         }
@@ -906,7 +906,9 @@ impl Inner {
             Outcome::Succeeded(Some(r)) => Some(r.mesh_bytes + r.report_bytes),
             _ => None,
         };
-        let at = job.finish(outcome);
+        // Older results leave before this job's waiters wake: whoever sees
+        // it finished also sees the budget kept.
+        let at = Instant::now();
         let evicted = lock(&self.store).finished(job.id, at, result_bytes);
         if !evicted.is_empty() {
             metrics::counter!("meshsmooth_results_evicted_total", "reason" => "memory")
@@ -915,6 +917,7 @@ impl Inner {
         for old in evicted {
             old.evict_result();
         }
+        job.finish(outcome, at);
     }
 
     fn record_run_time(&self, run: Duration) {
