@@ -152,6 +152,18 @@ pub struct Params {
     /// the way (the fidelity bound keeps every corner in its dual voxel).
     /// Default 1; range 0 < l <= 1.
     pub lattice_staircase_lambda: f64,
+    /// After the staircase relaxation (when `staircase_steps` is not 0),
+    /// each vertex moves back out along its normal by this fraction of the
+    /// normal part of its umbrella vector, averaged over a few rings: the
+    /// inward shift an umbrella step gives a curved patch, largest where
+    /// the curvature is (a gyrus's crown, a crop's rim), which the volume
+    /// restoration's one global offset cannot put back where it was lost.
+    /// 0 leaves it. Default 0.5, the best of 0 to 1.5 on the real brain
+    /// masks (`docs/tuning.md`); range 0..=2.
+    pub shrinkage_compensation: f64,
+    /// [`Params::shrinkage_compensation`] on a voxel lattice. Default 0.5;
+    /// range 0..=2.
+    pub lattice_shrinkage_compensation: f64,
     /// A vertex whose adaptive neighbourhood stays within this many rings
     /// lies on the shape, not on the staircase: the curvature changes
     /// within a few rings of it (a gyrus, a thin tube). The initial passes
@@ -229,6 +241,8 @@ impl Default for Params {
             staircase_steps: 2,
             staircase_lambda: 0.5,
             lattice_staircase_lambda: 1.0,
+            shrinkage_compensation: 0.5,
+            lattice_shrinkage_compensation: 0.5,
             shape_ring: 2,
             shape_passes: 4,
             lattice_shape_passes: 0,
@@ -376,6 +390,18 @@ impl Params {
                 "0..=100",
             ),
             ("bias_bound", self.bias_bound, 10.0, "0..=10"),
+            (
+                "shrinkage_compensation",
+                self.shrinkage_compensation,
+                2.0,
+                "0..=2",
+            ),
+            (
+                "lattice_shrinkage_compensation",
+                self.lattice_shrinkage_compensation,
+                2.0,
+                "0..=2",
+            ),
             (
                 "max_normal_angle_deg",
                 self.max_normal_angle_deg,

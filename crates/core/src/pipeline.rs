@@ -21,7 +21,7 @@ use crate::smoothing::fidelity::{Fidelity, FidelityBound, is_voxel_lattice};
 use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
-use crate::smoothing::staircase::relax_staircase;
+use crate::smoothing::staircase::{compensate_shrinkage, relax_staircase};
 use crate::smoothing::volume::restore_volume;
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::{DVec3, Vec3};
@@ -385,7 +385,9 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 /// The initial passes (paper section 2.2) on `positions`: their fit
 /// statistics and the input's mean curvature variation, from the first
 /// pass's fits. The staircase relaxation ([`relax_staircase`]) runs between the first
-/// pass, whose fits also give the input's curvature, and the second. On a
+/// pass, whose fits also give the input's curvature, and the second, and
+/// gives back the local shrinkage of its umbrella steps
+/// ([`compensate_shrinkage`]). On a
 /// voxel lattice the relaxation, over all neighbours, replaces the passes
 /// ([`Params::staircase_steps`]), and the input's curvature comes from the
 /// same 2-ring fits made without moving a vertex.
@@ -411,6 +413,15 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             run.relaxable,
             params.staircase_steps,
             params.lattice_staircase_lambda,
+            f64::NEG_INFINITY,
+            run.fidelity,
+        );
+        compensate_shrinkage(
+            run.mesh,
+            run.topo,
+            positions,
+            run.relaxable,
+            params.lattice_shrinkage_compensation,
             f64::NEG_INFINITY,
             run.fidelity,
         );
@@ -447,6 +458,17 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             params.min_normal_cos(),
             run.fidelity,
         );
+        if params.staircase_steps > 0 {
+            compensate_shrinkage(
+                run.mesh,
+                run.topo,
+                positions,
+                run.movable,
+                params.shrinkage_compensation,
+                params.min_normal_cos(),
+                run.fidelity,
+            );
+        }
         fits.accumulate(some_passes(positions, passes - 1, 1, false)?.0);
     }
     Ok((fits, mean_curvature_variation(run.topo, &input_curvature)))

@@ -9,6 +9,14 @@
 //! the way to the mean of its neighbours spreads them over the surface
 //! and turns the normals toward it, so the later fits see the surface, not
 //! the steps. Every step keeps to the fidelity bound.
+//!
+//! Umbrella steps also shrink the surface they smooth: a full step moves a
+//! vertex of a smooth curved patch inward by the normal part of its
+//! umbrella vector, about its curvature times its squared edge length
+//! (Taubin 1995). The volume restoration at the end puts back the mean of
+//! that loss, but a gyrus's crown shrinks and a sulcus's fundus swells
+//! where a plateau barely moves. [`compensate_shrinkage`] moves each vertex
+//! back along its normal by a fraction of that local shrinkage.
 
 use super::fidelity::Fidelity;
 use crate::fit::normals::vertex_normals_f32_by_faces;
@@ -67,6 +75,78 @@ pub fn relax_staircase(
     }
 }
 
+/// Jacobi sweeps that average the normal parts of the umbrella vectors
+/// before they are undone: the average over a few rings is the part of
+/// the vector that follows the surface's curvature; what remains of the
+/// staircase and the vertices' uneven spacing varies from one vertex to
+/// the next and averages out.
+pub const SHRINKAGE_RINGS: u32 = 6;
+
+/// Moves each `movable` vertex of `positions` (one per vertex, moved in
+/// place) outward along its normal by `fraction` of the normal part of its
+/// umbrella vector (the mean of its neighbours less its position, over the
+/// neighbours whose normals turn from its own by a cosine of at least
+/// `min_cos`), averaged over [`SHRINKAGE_RINGS`] rings; then `fidelity`.
+/// Boundary vertices stay: the vector of an open rim points into the
+/// surface, not across it. Deterministic and parallel per vertex.
+#[allow(clippy::too_many_arguments)]
+pub fn compensate_shrinkage(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &mut [DVec3],
+    movable: &[bool],
+    fraction: f64,
+    min_cos: f64,
+    fidelity: &Fidelity,
+) {
+    if fraction == 0.0 {
+        return;
+    }
+    let normals = vertex_normals_f32_by_faces(mesh, topo, positions);
+    let normal = |v: usize| normals[v].as_dvec3();
+    let mut shrink: Vec<f64> = (0..positions.len())
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|v| {
+            let n = normal(v);
+            let (sum, count) = topo
+                .neighbors(v)
+                .iter()
+                .filter(|&&j| n.dot(normal(j as usize)) >= min_cos)
+                .fold((DVec3::ZERO, 0u32), |(s, c), &j| {
+                    (s + positions[j as usize], c + 1)
+                });
+            if count == 0 {
+                0.0
+            } else {
+                n.dot(sum / f64::from(count) - positions[v])
+            }
+        })
+        .collect();
+    let mut next = vec![0.0; shrink.len()];
+    for _ in 0..SHRINKAGE_RINGS {
+        next.par_iter_mut()
+            .with_min_len(4096)
+            .enumerate()
+            .for_each(|(v, out)| {
+                let nb = topo.neighbors(v);
+                let sum: f64 = nb.iter().map(|&j| shrink[j as usize]).sum();
+                *out = (shrink[v] + sum) / (nb.len() + 1) as f64;
+            });
+        std::mem::swap(&mut shrink, &mut next);
+    }
+    positions
+        .par_iter_mut()
+        .with_min_len(4096)
+        .enumerate()
+        .for_each(|(v, p)| {
+            if movable[v] && topo.kind(v) != VertexKind::Boundary {
+                *p -= fraction * shrink[v] * normal(v);
+            }
+        });
+    fidelity.apply(positions);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -96,5 +176,41 @@ mod tests {
         let mut q = input.to_vec();
         relax_staircase(&mesh, &topo, &mut q, &movable, 0, 0.5, 0.5, &fidelity);
         assert_eq!(q, input);
+    }
+
+    #[test]
+    fn compensating_the_shrinkage_moves_a_smoothed_sphere_back_out() {
+        let (sphere, mesh) = shapes::mc_sphere(10.0);
+        let topo = Topology::build(&mesh);
+        let movable = vec![true; mesh.num_vertices()];
+        let fidelity = Fidelity::new(None, mesh.positions());
+        let mut p = mesh.positions().to_vec();
+        relax_staircase(&mesh, &topo, &mut p, &movable, 2, 1.0, -1.0, &fidelity);
+        let mean_radius =
+            |p: &[DVec3]| p.iter().map(|q| q.distance(sphere.center)).sum::<f64>() / p.len() as f64;
+        let relaxed = p.clone();
+        let shrunk = sphere.radius - mean_radius(&relaxed);
+        assert!(shrunk > 0.05, "two full umbrella steps shrink it: {shrunk}");
+
+        compensate_shrinkage(&mesh, &topo, &mut p, &movable, 0.0, -1.0, &fidelity);
+        assert_eq!(p, relaxed, "a zero fraction moves nothing");
+
+        compensate_shrinkage(&mesh, &topo, &mut p, &movable, 1.0, -1.0, &fidelity);
+        let left = sphere.radius - mean_radius(&p);
+        // One full step's shrinkage of two comes back, less the part a
+        // polygonal sphere's umbrella vector does not show.
+        assert!(left > 0.0 && left < 0.75 * shrunk, "{shrunk} -> {left}");
+        let outward = p
+            .iter()
+            .zip(&relaxed)
+            .all(|(q, r)| (*q - *r).dot(*r - sphere.center) >= 0.0);
+        assert!(outward, "every vertex of a sphere moves out");
+        assert!(shapes::rms_distance(&sphere, &p) < shapes::rms_distance(&sphere, &relaxed));
+
+        // Held vertices stay.
+        let mut q = relaxed.clone();
+        let held = vec![false; mesh.num_vertices()];
+        compensate_shrinkage(&mesh, &topo, &mut q, &held, 1.0, -1.0, &fidelity);
+        assert_eq!(q, relaxed);
     }
 }
