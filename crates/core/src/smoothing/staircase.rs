@@ -21,7 +21,7 @@
 use super::fidelity::Fidelity;
 use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::mesh::{Mesh, Topology, VertexKind};
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 /// `steps` Jacobi steps `p += lambda (mean of neighbours - p)` on the
@@ -56,23 +56,36 @@ pub fn relax_staircase(
             .enumerate()
             .with_min_len(4096)
             .for_each(|(v, p)| {
-                let nb = topo.neighbors(v);
-                if !movable[v] || nb.is_empty() || topo.kind(v) == VertexKind::Boundary {
+                if !movable[v] || topo.kind(v) == VertexKind::Boundary {
                     return;
                 }
-                let n = normals[v].as_dvec3();
-                let (sum, count) = nb
-                    .iter()
-                    .filter(|&&j| n.dot(normals[j as usize].as_dvec3()) >= min_cos)
-                    .fold((DVec3::ZERO, 0u32), |(s, c), &j| {
-                        (s + old[j as usize], c + 1)
-                    });
-                if count > 0 {
-                    *p += lambda * (sum / f64::from(count) - *p);
+                if let Some(mean) = facing_mean(topo, &normals, &old, v, min_cos) {
+                    *p += lambda * (mean - *p);
                 }
             });
         fidelity.apply(positions);
     }
+}
+
+/// The mean position of `v`'s neighbours whose normals turn from its own
+/// by a cosine of at least `min_cos` (the umbrella operator's target); none
+/// when no neighbour qualifies.
+fn facing_mean(
+    topo: &Topology,
+    normals: &[Vec3],
+    positions: &[DVec3],
+    v: usize,
+    min_cos: f64,
+) -> Option<DVec3> {
+    let n = normals[v].as_dvec3();
+    let (sum, count) = topo
+        .neighbors(v)
+        .iter()
+        .filter(|&&j| n.dot(normals[j as usize].as_dvec3()) >= min_cos)
+        .fold((DVec3::ZERO, 0u32), |(s, c), &j| {
+            (s + positions[j as usize], c + 1)
+        });
+    (count > 0).then(|| sum / f64::from(count))
 }
 
 /// Jacobi sweeps that average the normal parts of the umbrella vectors
@@ -89,7 +102,6 @@ pub const SHRINKAGE_RINGS: u32 = 6;
 /// `min_cos`), averaged over [`SHRINKAGE_RINGS`] rings; then `fidelity`.
 /// Boundary vertices stay: the vector of an open rim points into the
 /// surface, not across it. Deterministic and parallel per vertex.
-#[allow(clippy::too_many_arguments)]
 pub fn compensate_shrinkage(
     mesh: &Mesh,
     topo: &Topology,
@@ -108,19 +120,8 @@ pub fn compensate_shrinkage(
         .into_par_iter()
         .with_min_len(4096)
         .map(|v| {
-            let n = normal(v);
-            let (sum, count) = topo
-                .neighbors(v)
-                .iter()
-                .filter(|&&j| n.dot(normal(j as usize)) >= min_cos)
-                .fold((DVec3::ZERO, 0u32), |(s, c), &j| {
-                    (s + positions[j as usize], c + 1)
-                });
-            if count == 0 {
-                0.0
-            } else {
-                n.dot(sum / f64::from(count) - positions[v])
-            }
+            facing_mean(topo, &normals, positions, v, min_cos)
+                .map_or(0.0, |mean| normal(v).dot(mean - positions[v]))
         })
         .collect();
     let mut next = vec![0.0; shrink.len()];
