@@ -22,7 +22,7 @@ use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
 use crate::smoothing::staircase::{compensate_shrinkage, relax_staircase};
-use crate::smoothing::volume::restore_volume;
+use crate::smoothing::volume::{VolumeParts, restore_volume};
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -213,6 +213,9 @@ struct Run<'a> {
     /// record of what it held back.
     quality_bound: Option<&'a FidelityBound>,
     quality_fidelity: &'a Fidelity<'a>,
+    /// The parts whose volumes are restored, when the volume is to be
+    /// preserved and the mesh is closed ([`VolumeParts`]).
+    volume_parts: Option<&'a VolumeParts>,
     progress: &'a dyn Progress,
     cancel: &'a AtomicBool,
 }
@@ -514,43 +517,32 @@ fn growth_rule(params: &Params, edge_length: f64) -> GrowthRule {
     }
 }
 
-/// Restores the enclosed volume after the adaptive passes when asked and
-/// the mesh is closed: the offset applied, and the relative change left
-/// when the restoration was refused.
+/// Restores each part's enclosed volume after the adaptive passes when
+/// asked and the mesh is closed ([`restore_volume`]): the mean offset
+/// applied, and the relative change left when some part's restoration was
+/// refused.
 fn restore_after_passes(run: &Run, positions: &mut [DVec3]) -> (f64, Option<f64>) {
-    let Run { mesh, topo, .. } = *run;
-    if !run.params.preserve_volume || topo.num_boundary_edges() != 0 {
+    let Some(parts) = run.volume_parts else {
         return (0.0, None);
-    }
-    let offset = restore_input_volume(run, positions, MAX_VOLUME_OFFSET, |_| true);
-    run.fidelity.apply(positions);
-    let target = mesh.signed_volume();
-    let change = (signed_volume(mesh, positions) - target) / target.abs();
-    let refused = offset == 0.0 && change.abs() > VOLUME_RESTORED;
-    (offset, refused.then_some(change))
-}
-
-/// Restores the input's enclosed volume at `positions` by an offset along
-/// the normals of at most `max_fraction` of the mean edge length, kept
-/// only if `accept` takes the moved positions ([`restore_volume`]): the
-/// offset applied.
-fn restore_input_volume(
-    run: &Run,
-    positions: &mut [DVec3],
-    max_fraction: f64,
-    accept: impl Fn(&[DVec3]) -> bool,
-) -> f64 {
-    let max_offset = max_fraction * mean_edge_length(run.mesh, positions);
-    let target = run.mesh.signed_volume();
-    restore_volume(
+    };
+    let max_offset = MAX_VOLUME_OFFSET * mean_edge_length(run.mesh, positions);
+    let restored = restore_volume(
         run.mesh,
         run.topo,
+        parts,
         positions,
         run.movable,
-        target,
         max_offset,
-        accept,
-    )
+        |_| true,
+    );
+    run.fidelity.apply(positions);
+    // A part left as it was is worth a warning when nothing moved or when
+    // what it leaves is a visible share of the whole volume.
+    let refused = restored.left.abs() > VOLUME_RESTORED
+        && (restored.mean_offset == 0.0 || restored.left.abs() > VOLUME_WARNING);
+    let target = run.mesh.signed_volume();
+    let change = (signed_volume(run.mesh, positions) - target) / target.abs();
+    (restored.mean_offset, refused.then_some(change))
 }
 
 /// The curvature a stage reports (and the run's per-vertex result): from
@@ -654,6 +646,10 @@ pub fn run(
         Some(b) => b.has_lattice(),
         None => params.method == Method::WangYu && is_voxel_lattice(&topo, mesh.positions()),
     };
+    let volume_parts = (params.method == Method::WangYu
+        && params.preserve_volume
+        && topo.num_boundary_edges() == 0)
+        .then(|| VolumeParts::new(mesh, &topo));
     let run = Run {
         mesh,
         topo: &topo,
@@ -664,6 +660,7 @@ pub fn run(
         fidelity: &fidelity,
         quality_bound: quality_bound.as_ref(),
         quality_fidelity: &quality_fidelity,
+        volume_parts: volume_parts.as_ref(),
         progress,
         cancel,
     };
@@ -820,7 +817,7 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
     if let Some(change) = r.volume_not_restored {
         report.warnings.push(format!(
             "the enclosed volume changed by {:+.2}% and could not be restored: a \
-             uniform offset of at most half an edge length does not bring it back (the mesh may be \
+             uniform offset of at most half an edge length per connected part does not bring it back (the mesh may be \
              too coarse or too thin for quadric fitting, or the volume restoration \
              cannot undo a collapse)",
             100.0 * change
@@ -856,12 +853,11 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
     // The fixes slide vertices over their fitted quadrics, which shifts
     // the volume a little.
     if let Some(summary) = report.wang_yu.as_mut()
-        && params.preserve_volume
-        && topo.num_boundary_edges() == 0
+        && let Some(parts) = run.volume_parts
         && summary.volume_offset != 0.0
     {
         summary.volume_offset +=
-            restore_where_safe(mesh, topo, positions, run.movable, run.quality_bound);
+            restore_where_safe(mesh, topo, parts, positions, run.movable, run.quality_bound);
     }
     run.quality_fidelity.apply(positions);
     run.progress.update(Stage::Quality, 1.0);
@@ -873,18 +869,19 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
 /// around the first ones left out.
 const REOFFSET_ROUNDS: usize = 4;
 
-/// Restores the input's volume after the quality fixes by an offset of at
+/// Restores each part's input volume after the quality fixes by an offset of at
 /// most [`MAX_VOLUME_REOFFSET`] of the mean edge length, over the movable
 /// vertices whose move folds or twists no face that was sound and keeps
 /// them within the quality bound: a round that would fold a face or leave
 /// the bound leaves that face's corners (or that vertex) where they are and
-/// solves again, up to [`REOFFSET_ROUNDS`] rounds. The offset applied, 0
+/// solves again, up to [`REOFFSET_ROUNDS`] rounds. The mean offset applied, 0
 /// when no round succeeded (the positions are then unchanged). A thin
 /// neurite's few near-degenerate faces would otherwise keep the whole
 /// surface from its volume.
 fn restore_where_safe(
     mesh: &Mesh,
     topo: &Topology,
+    parts: &VolumeParts,
     positions: &mut [DVec3],
     movable: &[bool],
     quality_bound: Option<&FidelityBound>,
@@ -896,14 +893,14 @@ fn restore_where_safe(
         .map(|f| !is_defective(mesh, f, positions, input))
         .collect();
     let max_offset = MAX_VOLUME_REOFFSET * mean_edge_length(mesh, positions);
-    let target = mesh.signed_volume();
     let mut movable = movable.to_vec();
     let mut trial = positions.to_vec();
     for _ in 0..REOFFSET_ROUNDS {
         trial.copy_from_slice(positions);
-        let offset = restore_volume(mesh, topo, &mut trial, &movable, target, max_offset, |_| {
+        let offset = restore_volume(mesh, topo, parts, &mut trial, &movable, max_offset, |_| {
             true
-        });
+        })
+        .mean_offset;
         if offset == 0.0 {
             return 0.0;
         }
@@ -1054,6 +1051,7 @@ mod tests {
         let mesh = voxel_boundary_mesh(&mask);
         let topo = Topology::build(&mesh);
         let movable = movable_mask(&topo, BoundaryRule::Fixed);
+        let parts = VolumeParts::new(&mesh, &topo);
         let input = mesh.positions();
         let target = mesh.signed_volume();
         let centre = DVec3::splat(3.0);
@@ -1065,7 +1063,7 @@ mod tests {
 
         // Free to move: the volume comes back.
         let mut p = shrunk.clone();
-        let offset = restore_where_safe(&mesh, &topo, &mut p, &movable, None);
+        let offset = restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None);
         assert!(offset > 0.0);
         assert!((volume(&p) - target).abs() < 1e-6 * target);
 
@@ -1078,7 +1076,7 @@ mod tests {
         let mut p = shrunk.clone();
         p[corner] = input[corner] - DVec3::splat(0.0999);
         let before = p.clone();
-        let offset = restore_where_safe(&mesh, &topo, &mut p, &movable, Some(&bound));
+        let offset = restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, Some(&bound));
         assert!(offset > 0.0);
         assert_eq!(p[corner], before[corner]);
         assert!((volume(&p) - target).abs() < 1e-6 * target);
@@ -1089,7 +1087,7 @@ mod tests {
         let mut p = shrunk.clone();
         let before = p.clone();
         assert_eq!(
-            restore_where_safe(&mesh, &topo, &mut p, &movable, Some(&bound)),
+            restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, Some(&bound)),
             0.0
         );
         assert_eq!(p, before);

@@ -103,3 +103,64 @@ fn touching_masks_make_non_manifold_contacts() {
         .sum();
     assert!(contacts > 0, "no placement makes a non-manifold contact");
 }
+
+/// The mean signed distance from a sphere of `radius` about `centre` of the
+/// vertices whose input lies on the side of `split` that `outer` says.
+fn mean_radial_error(
+    input: &[glam::DVec3],
+    output: &[glam::DVec3],
+    centre: glam::DVec3,
+    split: f64,
+    outer: bool,
+    radius: f64,
+) -> f64 {
+    let errors: Vec<f64> = input
+        .iter()
+        .zip(output)
+        .filter(|(i, _)| ((**i - centre).length() > split) == outer)
+        .map(|(_, o)| (*o - centre).length() - radius)
+        .collect();
+    errors.iter().sum::<f64>() / errors.len() as f64
+}
+
+#[test]
+fn both_surfaces_of_a_shell_stay_where_they_were() {
+    // The fits push a convex surface outwards and a concave one inwards, so
+    // both surfaces of a shell drift away from its centre while its volume
+    // barely changes: the outer surface and the cavity's each get their
+    // volume back, and neither is left offset.
+    let (outer, thickness) = (10.0, 2.0);
+    let shell = shapes::placed(shapes::shell(outer, thickness), 3);
+    let centre = 0.5 * (shell.bounds().0 + shell.bounds().1);
+    let mask = shapes::voxel_mask(&shell);
+    for (kind, mesh) in [
+        ("voxel", shapes::voxel_boundary_mesh(&mask)),
+        ("mc", shapes::marching_cubes_mesh(&mask)),
+    ] {
+        let out = run(
+            &mesh,
+            &Params::default(),
+            &NoProgress,
+            &AtomicBool::new(false),
+        )
+        .unwrap_or_else(|e| panic!("{kind}: {e}"));
+        let split = outer - 0.5 * thickness;
+        for (side, is_outer, radius) in
+            [("outer", true, outer), ("inner", false, outer - thickness)]
+        {
+            let e = mean_radial_error(
+                mesh.positions(),
+                &out.positions,
+                centre,
+                split,
+                is_outer,
+                radius,
+            );
+            eprintln!("{kind} {side}: mean radial error {e:+.4}");
+            assert!(
+                e.abs() < 0.03,
+                "{kind} shell, {side} surface: offset {e:+.4} voxel"
+            );
+        }
+    }
+}

@@ -255,6 +255,24 @@ impl Topology {
         roots.iter().map(|&r| size[r as usize]).collect()
     }
 
+    /// Each vertex's connected component, numbered from 0 in the order of
+    /// the components' lowest vertex, and the number of components
+    /// (isolated vertices count as components of their own).
+    pub fn component_ids(&self) -> (Vec<u32>, usize) {
+        let roots = self.component_roots();
+        let mut id = vec![u32::MAX; roots.len()];
+        let mut count = 0u32;
+        for v in 0..roots.len() {
+            let r = roots[v] as usize;
+            if id[r] == u32::MAX {
+                id[r] = count;
+                count += 1;
+            }
+            id[v] = id[r];
+        }
+        (id, count as usize)
+    }
+
     /// Each vertex's component as one root vertex (union-find over the
     /// edges, paths compressed so every entry is its root).
     fn component_roots(&self) -> Vec<u32> {
