@@ -540,9 +540,11 @@ fn restore_after_passes(run: &Run, positions: &mut [DVec3]) -> (f64, Option<f64>
     // what it leaves is a visible share of the whole volume.
     let refused = restored.left.abs() > VOLUME_RESTORED
         && (restored.mean_offset == 0.0 || restored.left.abs() > VOLUME_WARNING);
-    let target = run.mesh.signed_volume();
-    let change = (signed_volume(run.mesh, positions) - target) / target.abs();
-    (restored.mean_offset, refused.then_some(change))
+    let change = || {
+        let target = run.mesh.signed_volume();
+        (signed_volume(run.mesh, positions) - target) / target.abs()
+    };
+    (restored.mean_offset, refused.then(change))
 }
 
 /// The curvature a stage reports (and the run's per-vertex result): from
@@ -817,7 +819,7 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
     if let Some(change) = r.volume_not_restored {
         report.warnings.push(format!(
             "the enclosed volume changed by {:+.2}% and could not be restored: a \
-             uniform offset of at most half an edge length per connected part does not bring it back (the mesh may be \
+             uniform offset of at most half an edge length (one for the solids, one for the cavities) does not bring it back (the mesh may be \
              too coarse or too thin for quadric fitting, or the volume restoration \
              cannot undo a collapse)",
             100.0 * change

@@ -156,7 +156,6 @@ fn both_surfaces_of_a_shell_stay_where_they_were() {
                 is_outer,
                 radius,
             );
-            eprintln!("{kind} {side}: mean radial error {e:+.4}");
             assert!(
                 e.abs() < 0.03,
                 "{kind} shell, {side} surface: offset {e:+.4} voxel"

@@ -264,16 +264,27 @@ pub fn signed_volume(mesh: &Mesh, positions: &[DVec3]) -> f64 {
     sum_over_face_chunks(mesh.num_faces(), |faces| {
         let mut v = 0.0;
         for f in faces {
-            let face = mesh.face(f);
-            let o = positions[face[0] as usize];
-            for j in 1..face.len() - 1 {
-                let a = positions[face[j] as usize];
-                let b = positions[face[j + 1] as usize];
-                v += o.dot(a.cross(b));
-            }
+            v += cone_volume6(mesh.face(f), positions);
         }
         v
     }) / 6.0
+}
+
+/// Six times the signed volume of the cone from the origin over `face`,
+/// fanned from its first corner: [`signed_volume`]'s term per face.
+#[inline]
+pub(crate) fn cone_volume6(face: &[u32], positions: &[DVec3]) -> f64 {
+    let Some(&first) = face.first() else {
+        return 0.0;
+    };
+    let o = positions[first as usize];
+    let mut v = 0.0;
+    for j in 1..face.len().saturating_sub(1) {
+        let a = positions[face[j] as usize];
+        let b = positions[face[j + 1] as usize];
+        v += o.dot(a.cross(b));
+    }
+    v
 }
 
 /// `chunk_sum` over faces `0..num_faces` in fixed chunks of 4096, in

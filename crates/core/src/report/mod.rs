@@ -347,8 +347,8 @@ pub struct WangYuSummary {
     /// Offset along the vertex normals that restored the input volume after
     /// adaptive smoothing, plus the small one (at most a tenth of an edge)
     /// that restores it again after the quality fixes, in mesh units (0 when
-    /// not applied). Each connected part gets its own offset; this is their
-    /// mean weighted by area.
+    /// not applied). The solids and the cavities get an offset each; this is
+    /// their mean weighted by area.
     pub volume_offset: f64,
     /// Vertices the fidelity bound (`max_displacement`) held back at least
     /// once: a smoothing pass, the volume restoration or a quality fix

@@ -20,7 +20,7 @@
 //! overstates it) is not inflated back on its own.
 
 use crate::fit::normals::vertex_normals;
-use crate::mesh::{Mesh, Topology};
+use crate::mesh::{Mesh, Topology, cone_volume6};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -51,69 +51,55 @@ impl VolumeParts {
     /// The solids and the cavities of `mesh` and their input volumes.
     pub fn new(mesh: &Mesh, topo: &Topology) -> Self {
         let (component, count) = topo.component_ids();
-        let components = VolumeParts {
-            part_of: component,
-            targets: Vec::new(),
-        };
-        let volumes = components.volumes(mesh, mesh.positions(), count);
+        let volumes = part_volumes(mesh, mesh.positions(), &component, count);
         let cavity: Vec<bool> = volumes.iter().map(|&v| v < 0.0).collect();
         let two = cavity.iter().any(|&c| c) && cavity.iter().any(|&c| !c);
-        let part_of: Vec<u32> = components
-            .part_of
+        let part_of: Vec<u32> = component
             .iter()
             .map(|&c| u32::from(two && cavity[c as usize]))
             .collect();
-        let mut parts = VolumeParts {
-            part_of,
-            targets: Vec::new(),
-        };
-        parts.targets = parts.volumes(mesh, mesh.positions(), 1 + usize::from(two));
-        parts
+        let targets = part_volumes(mesh, mesh.positions(), &part_of, 1 + usize::from(two));
+        VolumeParts { part_of, targets }
     }
 
-    /// The input volume of the whole mesh.
+    /// The input volume of the whole mesh, in magnitude (at least the
+    /// smallest positive number, to divide by).
     fn total_target(&self) -> f64 {
-        self.targets.iter().sum()
+        self.targets
+            .iter()
+            .sum::<f64>()
+            .abs()
+            .max(f64::MIN_POSITIVE)
     }
 
-    /// Each part's signed volume at `positions` (a face belongs to its first
-    /// corner's part). The faces' volumes are computed in parallel and
-    /// summed in face order: the same bits whatever the thread count.
-    fn volumes(&self, mesh: &Mesh, positions: &[DVec3], count: usize) -> Vec<f64> {
-        let per_face: Vec<f64> = (0..mesh.num_faces())
-            .into_par_iter()
-            .with_min_len(4096)
-            .map(|f| face_volume(mesh.face(f), positions))
-            .collect();
-        self.sum_by_part(mesh, &per_face, count)
-    }
-
-    /// Each part's sum of a per-face value.
-    fn sum_by_part(&self, mesh: &Mesh, per_face: &[f64], count: usize) -> Vec<f64> {
-        let mut sums = vec![0.0; count];
-        for (f, &x) in per_face.iter().enumerate() {
-            if let Some(&first) = mesh.face(f).first() {
-                sums[self.part_of[first as usize] as usize] += x;
-            }
-        }
-        sums
+    /// Each part's signed volume at `positions`.
+    fn volumes(&self, mesh: &Mesh, positions: &[DVec3]) -> Vec<f64> {
+        part_volumes(mesh, positions, &self.part_of, self.targets.len())
     }
 }
 
-/// Signed volume of the cone from the origin over one face (fanned from its
-/// first corner), as [`crate::mesh::signed_volume`] sums it.
-fn face_volume(face: &[u32], positions: &[DVec3]) -> f64 {
-    let Some(&first) = face.first() else {
-        return 0.0;
-    };
-    let o = positions[first as usize];
-    let mut v = 0.0;
-    for j in 1..face.len().saturating_sub(1) {
-        let a = positions[face[j] as usize];
-        let b = positions[face[j + 1] as usize];
-        v += o.dot(a.cross(b));
+/// The signed volume at `positions` of each of `count` parts, vertex `v` in
+/// part `part_of[v]` (a face belongs to its first corner's part). The
+/// faces' volumes are computed in parallel and summed in face order: the
+/// same bits whatever the thread count.
+fn part_volumes(mesh: &Mesh, positions: &[DVec3], part_of: &[u32], count: usize) -> Vec<f64> {
+    let per_face: Vec<f64> = (0..mesh.num_faces())
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|f| cone_volume6(mesh.face(f), positions) / 6.0)
+        .collect();
+    sum_by_part(mesh, part_of, &per_face, count)
+}
+
+/// Each of `count` parts' sum of a per-face value ([`part_volumes`]).
+fn sum_by_part(mesh: &Mesh, part_of: &[u32], per_face: &[f64], count: usize) -> Vec<f64> {
+    let mut sums = vec![0.0; count];
+    for (f, &x) in per_face.iter().enumerate() {
+        if let Some(&first) = mesh.face(f).first() {
+            sums[part_of[first as usize] as usize] += x;
+        }
     }
-    v / 6.0
+    sums
 }
 
 /// Moves every movable vertex of part `p` by `delta_p * n_i`, solving for
@@ -141,9 +127,9 @@ pub fn restore_volume(
         .with_min_len(4096)
         .map(|f| mesh.face_vector_area(f).length())
         .collect();
-    let area = parts.sum_by_part(mesh, &face_area, count);
+    let area = sum_by_part(mesh, &parts.part_of, &face_area, count);
     drop(face_area);
-    let current = parts.volumes(mesh, positions, count);
+    let current = parts.volumes(mesh, positions);
     let targets = &parts.targets;
     let close = |v: f64, t: f64, tol: f64| (v - t).abs() <= tol * t.abs();
     // Parts to solve for: closed-looking, with area, not yet at their volume.
@@ -178,7 +164,7 @@ pub fn restore_volume(
         })
         .collect();
     apply(&d1, positions);
-    let mut v1 = parts.volumes(mesh, positions, count);
+    let mut v1 = parts.volumes(mesh, positions);
     for _ in 0..4 {
         let mut stepped = false;
         for p in (0..count).filter(|&p| solving[p]) {
@@ -194,7 +180,7 @@ pub fn restore_volume(
             break;
         }
         apply(&d1, positions);
-        v1 = parts.volumes(mesh, positions, count);
+        v1 = parts.volumes(mesh, positions);
     }
     // Parts whose offset is out of bounds or did not converge stay.
     let kept: Vec<bool> = (0..count)
@@ -205,38 +191,33 @@ pub fn restore_volume(
                 && close(v1[p], targets[p], 1e-6)
         })
         .collect();
+    // The change the parts in `left` still hold, relative to the whole.
+    let left_in = |left: &dyn Fn(usize) -> bool| -> f64 {
+        let change: f64 = (0..count)
+            .filter(|&p| left(p))
+            .map(|p| current[p] - targets[p])
+            .sum();
+        change / parts.total_target()
+    };
     let delta: Vec<f64> = (0..count)
         .map(|p| if kept[p] { d1[p] } else { 0.0 })
         .collect();
-    if kept.iter().any(|&k| k) {
+    let any = kept.iter().any(|&k| k);
+    if any {
         apply(&delta, positions);
-    } else {
-        positions.copy_from_slice(&base);
     }
-    let unrestored = |vols: &[f64]| -> f64 {
-        let left: f64 = (0..count)
-            .filter(|&p| !kept[p])
-            .map(|p| vols[p] - targets[p])
-            .sum();
-        left / parts.total_target().abs().max(f64::MIN_POSITIVE)
-    };
-    if !kept.iter().any(|&k| k) || !accept(positions) {
+    if !any || !accept(positions) {
         positions.copy_from_slice(&base);
         return Restored {
             mean_offset: 0.0,
-            left: (current.iter().sum::<f64>() - parts.total_target())
-                / parts.total_target().abs().max(f64::MIN_POSITIVE),
+            left: left_in(&|_| true),
         };
     }
     let moved_area: f64 = (0..count).filter(|&p| kept[p]).map(|p| area[p]).sum();
-    let mean_offset = (0..count)
-        .filter(|&p| kept[p])
-        .map(|p| delta[p] * area[p])
-        .sum::<f64>()
-        / moved_area;
+    let mean_offset = (0..count).map(|p| delta[p] * area[p]).sum::<f64>() / moved_area;
     Restored {
         mean_offset,
-        left: unrestored(&current),
+        left: left_in(&|p| !kept[p]),
     }
 }
 
@@ -298,15 +279,14 @@ mod tests {
             .iter()
             .map(|&x| x + 0.1 * (x - c).normalize())
             .collect();
-        let count = parts.targets.len();
-        let before = parts.volumes(&mesh, &p, count);
+        let before = parts.volumes(&mesh, &p);
         for (b, t) in before.iter().zip(&parts.targets) {
             assert!((b - t).abs() > 0.01 * t.abs(), "{b} vs {t}");
         }
         let movable = vec![true; mesh.num_vertices()];
         let done = restore_volume(&mesh, &topo, &parts, &mut p, &movable, 1.0, |_| true);
         assert_eq!(done.left, 0.0);
-        let after = parts.volumes(&mesh, &p, count);
+        let after = parts.volumes(&mesh, &p);
         for (a, t) in after.iter().zip(&parts.targets) {
             assert!((a - t).abs() <= 1e-6 * t.abs(), "{a} vs {t}");
         }
