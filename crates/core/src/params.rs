@@ -134,10 +134,13 @@ pub struct Params {
     /// made on the staircase itself (in frames tilted along its diagonals)
     /// would only pull the corners back toward it; the corners where voxels
     /// touch along an edge or at a corner (non-manifold vertices, which no
-    /// other step moves) relax with the rest. On any other mesh the
-    /// steps (`staircase_lambda`, facing neighbours only) run between the
-    /// first and the second initial pass, so the later fits are made in
-    /// frames that follow the surface (needs at least 2 initial passes).
+    /// other step moves) relax with the rest. On a marching-cubes mesh of a
+    /// mask (every vertex at a lattice edge's midpoint, on an axis-aligned
+    /// grid) the steps (`staircase_lambda`, facing neighbours only) run
+    /// between the first and the second initial pass, so the later fits are
+    /// made in frames that follow the surface (needs at least 2 initial
+    /// passes). A mesh that samples no lattice (a neuron, a molecular
+    /// surface) has no staircase: it gets the paper's passes alone.
     /// Default 2; range 0..=10 (0 on a lattice: the paper's initial passes).
     pub staircase_steps: u32,
     /// Step of the staircase relaxation, a fraction of the way to the
@@ -164,6 +167,24 @@ pub struct Params {
     /// [`Params::shrinkage_compensation`] on a voxel lattice. Default 0.5;
     /// range 0..=2.
     pub lattice_shrinkage_compensation: f64,
+    /// Accelerated steps of the lattice fairing (our addition to section
+    /// 2.2, `smoothing/fairing.rs`): on a voxel lattice, after the
+    /// staircase relaxation, the surface of least bending (thin-plate
+    /// energy of the umbrella operator) that stays near the input corners
+    /// and inside their dual voxels. The relaxation leaves a terrace (a
+    /// flat run of faces, a sphere's pole) flat wherever the grid fell; the
+    /// fairing bends it with its rims, so the accuracy no longer depends on
+    /// the grid's placement. 80 steps reach the minimiser within a hundredth
+    /// of a voxel. 0 turns it off; it needs the fidelity bound
+    /// (`max_displacement`). Default 80; range 0..=1000.
+    pub lattice_fairing_iterations: u32,
+    /// The lattice fairing's pull toward the input corners, relative to the
+    /// bending energy: `s^-4` keeps the input's shape at wavelengths longer
+    /// than about `2 pi s` edges and smooths shorter ones within the dual
+    /// voxels. Default 0.03 (`s` about 2.4), the best of 0.01 to 0.06 on
+    /// the real voxel masks and the analytic families (`docs/tuning.md`);
+    /// range 0 < a <= 100.
+    pub lattice_fairing_anchor: f64,
     /// A vertex whose adaptive neighbourhood stays within this many rings
     /// lies on the shape, not on the staircase: the curvature changes
     /// within a few rings of it (a gyrus, a thin tube). The initial passes
@@ -243,6 +264,8 @@ impl Default for Params {
             lattice_staircase_lambda: 1.0,
             shrinkage_compensation: 0.5,
             lattice_shrinkage_compensation: 0.5,
+            lattice_fairing_iterations: 80,
+            lattice_fairing_anchor: 0.03,
             shape_ring: 2,
             shape_passes: 4,
             lattice_shape_passes: 0,
@@ -370,6 +393,20 @@ impl Params {
             "0 < l <= 1",
         )?;
         check_u32("shape_passes", self.shape_passes, 0, 200, "0..=200")?;
+        check_u32(
+            "lattice_fairing_iterations",
+            self.lattice_fairing_iterations,
+            0,
+            1000,
+            "0..=1000",
+        )?;
+        let a = self.lattice_fairing_anchor;
+        check_f64(
+            "lattice_fairing_anchor",
+            a,
+            a > 0.0 && a <= 100.0,
+            "0 < a <= 100",
+        )?;
         check_u32(
             "lattice_shape_passes",
             self.lattice_shape_passes,

@@ -7,6 +7,7 @@ use crate::control::{Cancelled, Progress, Stage, check};
 use crate::error::{ErrorCode, ShapeError};
 use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::FitModel;
+use crate::mesh::lattice::{is_marching_cubes_lattice, is_voxel_lattice};
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length, signed_volume};
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
 use crate::quality::{improve, is_defective};
@@ -17,7 +18,8 @@ use crate::report::{
 use crate::report::{mean_curvature_variation, measure_stage, mesh_statistics};
 use crate::smoothing::adaptive::{GrowthRule, PassSettings, adaptive_passes, grow_neighbourhoods};
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
-use crate::smoothing::fidelity::{Fidelity, FidelityBound, is_voxel_lattice};
+use crate::smoothing::fairing::{FairingPlan, fair};
+use crate::smoothing::fidelity::{Fidelity, FidelityBound};
 use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
@@ -206,9 +208,17 @@ struct Run<'a> {
     /// Whether the input is a voxel lattice ([`is_voxel_lattice`]): its
     /// staircase is relaxed instead of fitted by the initial passes.
     lattice: bool,
+    /// Whether the input is a marching-cubes mesh of a binary mask
+    /// ([`is_marching_cubes_lattice`]): its staircase is relaxed between
+    /// the initial passes. A mesh that samples no lattice has no staircase
+    /// to relax, and umbrella steps would only shrink its thin parts (a
+    /// neuron's neurites) and roughen them.
+    marching_cubes: bool,
     /// The fidelity bound of the smoothing passes and the volume
     /// restoration ([`Params::max_displacement`]).
     fidelity: &'a Fidelity<'a>,
+    /// The fidelity bound itself.
+    bound: Option<&'a FidelityBound>,
     /// The wider bound of the quality fixes ([`QUALITY_ROOM`]), and the
     /// record of what it held back.
     quality_bound: Option<&'a FidelityBound>,
@@ -312,6 +322,7 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
     let mut positions = mesh.positions().to_vec();
     let (initial_fits, input_curvature_variation) =
         timings.time(Stage::Initial, || initial_stage(run, &mut positions))?;
+
     let initial = timings.time(Stage::Report, || {
         measure_stage(
             mesh,
@@ -387,13 +398,15 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 
 /// The initial passes (paper section 2.2) on `positions`: their fit
 /// statistics and the input's mean curvature variation, from the first
-/// pass's fits. The staircase relaxation ([`relax_staircase`]) runs between the first
-/// pass, whose fits also give the input's curvature, and the second, and
-/// gives back the local shrinkage of its umbrella steps
-/// ([`compensate_shrinkage`]). On a
-/// voxel lattice the relaxation, over all neighbours, replaces the passes
-/// ([`Params::staircase_steps`]), and the input's curvature comes from the
-/// same 2-ring fits made without moving a vertex.
+/// pass's fits. On a marching-cubes mesh of a mask the staircase
+/// relaxation ([`relax_staircase`]) runs between the first pass, whose
+/// fits also give the input's curvature, and the second, and gives back the
+/// local shrinkage of its umbrella steps ([`compensate_shrinkage`]); a mesh
+/// that samples no lattice gets the paper's passes alone. On a voxel
+/// lattice the relaxation, over all neighbours, and the fairing
+/// ([`fair_staircase`]) replace the passes ([`Params::staircase_steps`]),
+/// and the input's curvature comes from the same 2-ring fits made without
+/// moving a vertex.
 fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), Cancelled> {
     let params = run.params;
     if run.lattice && params.staircase_steps > 0 {
@@ -428,6 +441,7 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             f64::NEG_INFINITY,
             run.fidelity,
         );
+        fair_staircase(run, positions);
         run.progress.update(Stage::Initial, 1.0);
         let variation = mean_curvature_variation(run.topo, &input_curvature);
         return Ok((FitStats::default(), variation));
@@ -451,30 +465,61 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
     };
     let (mut fits, input_curvature) = some_passes(positions, passes.min(1), 0, true)?;
     if passes > 1 {
-        relax_staircase(
-            run.mesh,
-            run.topo,
-            positions,
-            run.movable,
-            params.staircase_steps,
-            params.staircase_lambda,
-            params.min_normal_cos(),
-            run.fidelity,
-        );
-        if params.staircase_steps > 0 {
-            compensate_shrinkage(
+        if run.marching_cubes {
+            relax_staircase(
                 run.mesh,
                 run.topo,
                 positions,
                 run.movable,
-                params.shrinkage_compensation,
+                params.staircase_steps,
+                params.staircase_lambda,
                 params.min_normal_cos(),
                 run.fidelity,
             );
+            if params.staircase_steps > 0 {
+                compensate_shrinkage(
+                    run.mesh,
+                    run.topo,
+                    positions,
+                    run.movable,
+                    params.shrinkage_compensation,
+                    params.min_normal_cos(),
+                    run.fidelity,
+                );
+            }
         }
         fits.accumulate(some_passes(positions, passes - 1, 1, false)?.0);
     }
     Ok((fits, mean_curvature_variation(run.topo, &input_curvature)))
+}
+
+/// How much of the fidelity bound's box the lattice fairing may use: the
+/// faired corners stay off the walls of their dual voxels, where the
+/// surface would pass through the four voxel centres of a wall, which the
+/// mask puts on both sides of it, and where the quality fixes need room to
+/// open the triangles the walls flatten. Chosen from 0.8, 0.9 and 1 on the
+/// real voxel masks and the analytic families (`docs/tuning.md`).
+const FAIRING_ROOM: f64 = 0.8;
+
+/// The lattice fairing ([`fair`]) of the relaxed `positions`, anchored to
+/// the input and held to [`FAIRING_ROOM`] of each corner's box. The
+/// vertices next to a non-manifold one stay where the relaxation put them:
+/// the bending energy couples them, through the pinch, to the other sheet.
+fn fair_staircase(run: &Run, positions: &mut [DVec3]) {
+    let params = run.params;
+    let Some(bound) = run.bound.filter(|_| params.lattice_fairing_iterations > 0) else {
+        return;
+    };
+    let room = bound.scaled(FAIRING_ROOM);
+    let held_to_room = Fidelity::new(Some(&room), run.mesh.positions());
+    let movable = away_from_pinches(run.topo, run.movable);
+    let plan = FairingPlan {
+        movable: &movable,
+        iterations: params.lattice_fairing_iterations,
+        anchor: params.lattice_fairing_anchor,
+        bound: &held_to_room,
+    };
+    fair(run.topo, positions, run.mesh.positions(), &plan);
 }
 
 /// Curvature and labels after the initial passes (paper section 2.3,
@@ -648,6 +693,8 @@ pub fn run(
         Some(b) => b.has_lattice(),
         None => params.method == Method::WangYu && is_voxel_lattice(&topo, mesh.positions()),
     };
+    let marching_cubes =
+        params.method == Method::WangYu && !lattice && is_marching_cubes_lattice(mesh.positions());
     let volume_parts = (params.method == Method::WangYu
         && params.preserve_volume
         && topo.num_boundary_edges() == 0)
@@ -659,7 +706,9 @@ pub fn run(
         relaxable: &masks.relaxable,
         params,
         lattice,
+        marching_cubes,
         fidelity: &fidelity,
+        bound: bound.as_ref(),
         quality_bound: quality_bound.as_ref(),
         quality_fidelity: &quality_fidelity,
         volume_parts: volume_parts.as_ref(),

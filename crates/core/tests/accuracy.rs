@@ -117,12 +117,16 @@ fn reported_curvature_is_the_spheres_and_its_variation_drops() {
     let spread = (h.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / h.len() as f64).sqrt();
     // The fidelity bound holds the staircase's deepest corners on the walls
     // of their dual voxels, where the curvature bends a little: the spread
-    // stays well under a tenth of the sphere's curvature.
-    assert!(spread < 0.07 / r, "H spread {spread}");
+    // stays under an eighth of the sphere's curvature.
+    assert!(spread < 0.125 / r, "H spread {spread}");
+    // The staircase's variation falls more than thirtyfold. (The lattice
+    // fairing, which makes the accuracy independent of where the grid
+    // falls, leaves this grid-symmetric sphere a little less even than the
+    // relaxation alone: about 0.011 against 0.007, docs/tuning.md.)
     let input = variation(&out, "input");
     let (a, f) = (variation(&out, "adaptive"), variation(&out, "final"));
     assert!(
-        a < 0.02 * input && f < 0.02 * input,
+        a < 0.03 * input && f < 0.03 * input,
         "{a} {f} vs input {input}"
     );
 
@@ -145,7 +149,7 @@ fn reported_curvature_is_the_spheres_and_its_variation_drops() {
     assert_eq!(input_stage(&taubin.report), input_stage(&report));
     let (wang_yu, baseline) = (variation(&out, "final"), variation(&taubin, "final"));
     assert!(
-        baseline < input && wang_yu < 0.1 * baseline,
+        baseline < input && wang_yu < 0.2 * baseline,
         "{wang_yu} vs {baseline}"
     );
 }

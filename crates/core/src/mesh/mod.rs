@@ -4,6 +4,7 @@
 //! trust it afterwards. Connectivity never changes: smoothing only moves
 //! vertices, so vertex and face order are those of the input.
 
+pub(crate) mod lattice;
 mod ring;
 mod topology;
 #[cfg(test)]

@@ -20,22 +20,12 @@
 //! mesh moves more than `sqrt(3) / 2` voxel.
 
 use super::project::mean_edge_at;
+use crate::mesh::lattice::{along_axis, lattice_frame};
 use crate::mesh::{Mesh, Topology};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-
-/// Two unit vectors are parallel for the lattice test when the cosine of
-/// their angle is at least this: lattice edges are parallel up to the
-/// rounding of the file's coordinates (a few units in the seventh digit for
-/// single-precision formats), anything else is off by far more.
-const PARALLEL_COS: f64 = 0.9999;
-
-/// How many candidate edges the lattice frame is looked for from: a mesh
-/// that is a lattice almost everywhere gives the frame from its first
-/// edges; one that is not fails every candidate and gets balls only.
-const FRAME_CANDIDATES: usize = 8;
 
 /// A run's fidelity bound, if any, with the input positions it holds the
 /// vertices to and the vertices it has held back so far.
@@ -90,6 +80,15 @@ impl<'a> Fidelity<'a> {
     pub fn apply(&self, positions: &mut [DVec3]) {
         if let Some((bound, input)) = self.bound {
             bound.clamp(input, positions, &self.held);
+        }
+    }
+
+    /// Brings `positions` back within the bound without recording which
+    /// vertices it held: for the iterates of a solver, which stay within
+    /// a narrower bound.
+    pub fn apply_quietly(&self, positions: &mut [DVec3]) {
+        if let Some((bound, input)) = self.bound {
+            bound.clamp(input, positions, &[]);
         }
     }
 
@@ -159,6 +158,19 @@ impl FidelityBound {
         }
     }
 
+    /// The same bound with every size times `factor`, in the same frame.
+    pub fn scaled(&self, factor: f64) -> Self {
+        FidelityBound {
+            frame: self.frame,
+            size: self
+                .size
+                .iter()
+                .map(|&s| s * factor as f32)
+                .collect::<Vec<f32>>()
+                .into(),
+        }
+    }
+
     /// Whether position `p` of vertex `v` (input position `input`) is
     /// within the bound.
     pub fn allows(&self, v: usize, input: DVec3, p: DVec3) -> bool {
@@ -182,16 +194,17 @@ impl FidelityBound {
 
     /// Brings every vertex of `positions` back within its bound around
     /// `input` (the same vertex's input position) and marks in `held` the
-    /// vertices it moved. Deterministic and parallel per vertex.
+    /// vertices it moved (none when `held` is empty). Deterministic and
+    /// parallel per vertex.
     fn clamp(&self, input: &[DVec3], positions: &mut [DVec3], held: &[AtomicBool]) {
         let frame = self.frame.unwrap_or([DVec3::X, DVec3::Y, DVec3::Z]);
         positions
             .par_iter_mut()
             .zip(input)
             .zip(&self.size[..])
-            .zip(held)
+            .enumerate()
             .with_min_len(4096)
-            .for_each(|(((p, &o), &s), held)| {
+            .for_each(|(v, ((p, &o), &s))| {
                 let d = *p - o;
                 let bounded = if s > 0.0 {
                     let h = f64::from(s);
@@ -210,77 +223,11 @@ impl FidelityBound {
                     d * (r / len)
                 };
                 *p = o + bounded;
-                held.store(true, Ordering::Relaxed);
+                if let Some(held) = held.get(v) {
+                    held.store(true, Ordering::Relaxed);
+                }
             });
     }
-}
-
-/// Whether `positions` is a voxel lattice (a voxel-boundary mesh, in any
-/// orientation): see [`lattice_frame`].
-pub fn is_voxel_lattice(topo: &Topology, positions: &[DVec3]) -> bool {
-    lattice_frame(topo, positions).is_some()
-}
-
-/// The lattice's three axes, when `positions` has a vertex whose edges run
-/// along three orthogonal directions and at least half the mesh's vertices
-/// have all their edges along them; `None` otherwise.
-fn lattice_frame(topo: &Topology, positions: &[DVec3]) -> Option<[DVec3; 3]> {
-    let n = topo.num_vertices();
-    if n == 0 {
-        return None;
-    }
-    let step = (n / FRAME_CANDIDATES).max(1);
-    (0..n).step_by(step).take(FRAME_CANDIDATES).find_map(|v| {
-        let frame = frame_at(topo, positions, v)?;
-        let on = (0..n)
-            .into_par_iter()
-            .with_min_len(4096)
-            .filter(|&u| {
-                let nb = topo.neighbors(u);
-                !nb.is_empty()
-                    && nb.iter().all(|&j| {
-                        along_axis(&frame, positions[j as usize] - positions[u]).is_some()
-                    })
-            })
-            .count();
-        (2 * on >= n).then_some(frame)
-    })
-}
-
-/// The orthogonal frame of vertex `v`'s edges, when it has two orthogonal
-/// edges and every other edge runs along one of the frame's axes.
-fn frame_at(topo: &Topology, positions: &[DVec3], v: usize) -> Option<[DVec3; 3]> {
-    let p = positions[v];
-    let dirs = topo
-        .neighbors(v)
-        .iter()
-        .map(|&j| (positions[j as usize] - p).normalize_or_zero());
-    let mut first = None;
-    let mut second = None;
-    for d in dirs {
-        match first {
-            None if d != DVec3::ZERO => first = Some(d),
-            Some(a) if second.is_none() && a.dot(d).abs() < 1.0 - PARALLEL_COS => second = Some(d),
-            _ => {}
-        }
-    }
-    let (a, b) = (first?, second?);
-    let frame = [a, b, a.cross(b).normalize()];
-    topo.neighbors(v)
-        .iter()
-        .all(|&j| along_axis(&frame, positions[j as usize] - p).is_some())
-        .then_some(frame)
-}
-
-/// The axis of `frame` that `d` runs along, if any.
-fn along_axis(frame: &[DVec3; 3], d: DVec3) -> Option<usize> {
-    let len = d.length();
-    if len == 0.0 {
-        return None;
-    }
-    frame
-        .iter()
-        .position(|a| a.dot(d).abs() >= PARALLEL_COS * len)
 }
 
 #[cfg(test)]

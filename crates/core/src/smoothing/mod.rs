@@ -3,6 +3,7 @@
 
 pub mod adaptive;
 pub mod curvature;
+pub mod fairing;
 pub mod fidelity;
 pub mod initial;
 pub mod label;
