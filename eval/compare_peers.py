@@ -145,7 +145,7 @@ def sweep():
     for it in (1, 2, 5, 10):
         out[f"PyMeshLab HC Laplacian x{it}"] = _repeat(pymeshlab_filter("apply_coord_hc_laplacian_smoothing"), it)
     for it in (10, 20, 35, 50, 100):
-        for band in (0.01, 0.05, 0.1, 0.2):
+        for band in (0.001, 0.005, 0.01, 0.05, 0.1, 0.2):
             out[f"VTK windowed sinc {it} it pass band {band}"] = pyvista_filter(
                 "smooth_taubin", n_iter=it, pass_band=band
             )

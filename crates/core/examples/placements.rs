@@ -5,7 +5,9 @@
 //! input and the output, the worst placement against the median, and the
 //! defects and volume change of the worst.
 //!
-//! `cargo run --release -p meshsmooth-core --example placements [-- JSON-PARAMS]`
+//! `cargo run --release -p meshsmooth-core --example placements [-- JSON-PARAMS [SHAPES]]`
+//! (SHAPES: comma-separated short names of
+//! [`shapes::placement_families`], e.g. `sphere,tube1.5`).
 
 use meshsmooth_core::shapes::{self, Shape};
 use meshsmooth_core::{Mesh, NoProgress, Params, run};
@@ -32,40 +34,19 @@ fn main() {
         "vol%",
         "held"
     );
-    type Make = fn() -> Box<dyn Shape>;
-    let cases: [(&str, Make); 12] = [
-        ("voxel sphere r=12", || {
-            Box::new(shapes::Sphere {
-                center: glam::DVec3::ZERO,
-                radius: 12.0,
-            })
-        }),
-        ("voxel torus 20/8", || Box::new(shapes::tube(20.0, 8.0))),
-        ("voxel ellipsoid 30/20/12", || {
-            Box::new(shapes::Ellipsoid {
-                center: glam::DVec3::ZERO,
-                semi_axes: glam::DVec3::new(30.0, 20.0, 12.0),
-            })
-        }),
-        ("shell r=12 t=2", || Box::new(shapes::shell(12.0, 2.0))),
-        ("shell r=12 t=3", || Box::new(shapes::shell(12.0, 3.0))),
-        ("tube 12/1.5", || Box::new(shapes::tube(12.0, 1.5))),
-        ("tube 12/2", || Box::new(shapes::tube(12.0, 2.0))),
-        ("tube 12/3", || Box::new(shapes::tube(12.0, 3.0))),
-        ("tangent spheres r=6", || {
-            Box::new(shapes::sphere_pair(6.0, 0.0))
-        }),
-        ("spheres r=6 gap 0.5", || {
-            Box::new(shapes::sphere_pair(6.0, 0.5))
-        }),
-        ("folded sheet t=2", || Box::new(shapes::folded_sheet(2.0))),
-        ("folded sheet t=3", || Box::new(shapes::folded_sheet(3.0))),
-    ];
-    for (name, make) in cases {
+    let only = std::env::args().nth(2);
+    for (short, name, shape) in shapes::placement_families() {
+        if only
+            .as_deref()
+            .is_some_and(|o| !o.split(',').any(|n| n == short))
+        {
+            continue;
+        }
+        let shape = &shape;
         for mc in [false, true] {
             let mut rows = Vec::new();
             for seed in 0..PLACEMENTS {
-                let shape = shapes::placed(Boxed(make()), seed);
+                let shape = shapes::placed(shape, seed);
                 let mask = shapes::voxel_mask(&shape);
                 let mesh = if mc {
                     shapes::marching_cubes_mesh(&mask)
@@ -101,24 +82,6 @@ fn main() {
                 sum(|r| r.held),
             );
         }
-    }
-}
-
-/// A boxed shape as a sized one, for [`shapes::placed`].
-struct Boxed(Box<dyn Shape>);
-
-impl Shape for Boxed {
-    fn inside(&self, p: glam::DVec3) -> bool {
-        self.0.inside(p)
-    }
-    fn distance(&self, p: glam::DVec3) -> f64 {
-        self.0.distance(p)
-    }
-    fn volume(&self) -> f64 {
-        self.0.volume()
-    }
-    fn bounds(&self) -> (glam::DVec3, glam::DVec3) {
-        self.0.bounds()
     }
 }
 

@@ -75,6 +75,11 @@ pub struct Params {
     /// more (flat regions) move with momentum and make 8 in 11 of these
     /// passes (16 of 22), which damps those waves as far with less drift.
     pub adaptive_passes: u32,
+    /// `adaptive_passes` on a voxel lattice: the lattice fairing has
+    /// already damped the staircase's long waves, and fewer passes keep the
+    /// analytic families closer at every grid placement (`docs/tuning.md`).
+    /// Default 16; range 0..=200.
+    pub lattice_adaptive_passes: u32,
     /// Surface model of the adaptive fits. Default `cubic`.
     pub adaptive_fit: AdaptiveFit,
     /// Largest ring `k` an adaptive neighbourhood may grow to (section 2.3).
@@ -174,9 +179,10 @@ pub struct Params {
     /// and inside their dual voxels. The relaxation leaves a terrace (a
     /// flat run of faces, a sphere's pole) flat wherever the grid fell; the
     /// fairing bends it with its rims, so the accuracy no longer depends on
-    /// the grid's placement. 80 steps reach the minimiser within a hundredth
-    /// of a voxel. 0 turns it off; it needs the fidelity bound
-    /// (`max_displacement`). Default 80; range 0..=1000.
+    /// the grid's placement. 40 steps leave every corner within a few
+    /// hundredths of a voxel of the minimiser (`docs/tuning.md`). 0 turns
+    /// it off; it needs the fidelity bound (`max_displacement`). Default
+    /// 40; range 0..=1000.
     pub lattice_fairing_iterations: u32,
     /// The lattice fairing's pull toward the input corners, relative to the
     /// bending energy: `s^-4` keeps the input's shape at wavelengths longer
@@ -247,6 +253,7 @@ impl Default for Params {
             method: Method::WangYu,
             initial_passes: 3,
             adaptive_passes: 22,
+            lattice_adaptive_passes: 16,
             adaptive_fit: AdaptiveFit::Cubic,
             k_max: 16,
             max_fit_points: 56,
@@ -264,7 +271,7 @@ impl Default for Params {
             lattice_staircase_lambda: 1.0,
             shrinkage_compensation: 0.5,
             lattice_shrinkage_compensation: 0.5,
-            lattice_fairing_iterations: 80,
+            lattice_fairing_iterations: 40,
             lattice_fairing_anchor: 0.03,
             shape_ring: 2,
             shape_passes: 4,
@@ -366,6 +373,13 @@ impl Params {
     pub fn validate(&self) -> Result<(), ParamError> {
         check_u32("initial_passes", self.initial_passes, 0, 100, "0..=100")?;
         check_u32("adaptive_passes", self.adaptive_passes, 0, 200, "0..=200")?;
+        check_u32(
+            "lattice_adaptive_passes",
+            self.lattice_adaptive_passes,
+            0,
+            200,
+            "0..=200",
+        )?;
         check_u32("k_max", self.k_max, 2, MAX_RINGS as u32, "2..=32")?;
         check_u32(
             "max_fit_points",

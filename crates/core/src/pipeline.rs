@@ -348,7 +348,11 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
             growth_rule(params, edge_length),
         );
         release_free_memory();
-        let passes = params.adaptive_passes;
+        let passes = if run.lattice {
+            params.lattice_adaptive_passes
+        } else {
+            params.adaptive_passes
+        };
         let away;
         let movable = if run.lattice {
             away = away_from_pinches(topo, movable);
@@ -511,13 +515,12 @@ fn fair_staircase(run: &Run, positions: &mut [DVec3]) {
         return;
     };
     let room = bound.scaled(FAIRING_ROOM);
-    let held_to_room = Fidelity::new(Some(&room), run.mesh.positions());
     let movable = away_from_pinches(run.topo, run.movable);
     let plan = FairingPlan {
         movable: &movable,
         iterations: params.lattice_fairing_iterations,
         anchor: params.lattice_fairing_anchor,
-        bound: &held_to_room,
+        bound: &room,
     };
     fair(run.topo, positions, run.mesh.positions(), &plan);
 }

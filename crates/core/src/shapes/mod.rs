@@ -17,7 +17,7 @@ mod voxel;
 pub use marching_cubes::marching_cubes_mesh;
 pub use segmentation::{
     FoldedSheet, Placed, Shell, SpherePair, edge_touching_blocks, folded_sheet, placed, placement,
-    shell, sphere_pair, tube,
+    placement_families, shell, sphere_pair, tube,
 };
 pub use voxel::{VOXEL_MARGIN, VoxelMask, voxel_boundary_mesh, voxel_mask};
 
@@ -36,6 +36,42 @@ pub trait Shape: Sync {
     fn volume(&self) -> f64;
     /// Axis-aligned bounding box `(min, max)` of the solid.
     fn bounds(&self) -> (DVec3, DVec3);
+}
+
+impl<S: Shape + ?Sized> Shape for &S {
+    fn inside(&self, p: DVec3) -> bool {
+        (**self).inside(p)
+    }
+
+    fn distance(&self, p: DVec3) -> f64 {
+        (**self).distance(p)
+    }
+
+    fn volume(&self) -> f64 {
+        (**self).volume()
+    }
+
+    fn bounds(&self) -> (DVec3, DVec3) {
+        (**self).bounds()
+    }
+}
+
+impl<S: Shape + ?Sized> Shape for Box<S> {
+    fn inside(&self, p: DVec3) -> bool {
+        (**self).inside(p)
+    }
+
+    fn distance(&self, p: DVec3) -> f64 {
+        (**self).distance(p)
+    }
+
+    fn volume(&self) -> f64 {
+        (**self).volume()
+    }
+
+    fn bounds(&self) -> (DVec3, DVec3) {
+        (**self).bounds()
+    }
 }
 
 /// Ball of `radius` about `center`.

@@ -4,7 +4,7 @@
 //! offsets and rotations) so a result is judged over where the grid falls,
 //! not at one lucky placement.
 
-use super::{Shape, Sphere, Torus, VoxelMask, voxel_boundary_mesh};
+use super::{Ellipsoid, Shape, Sphere, Torus, VoxelMask, voxel_boundary_mesh};
 use crate::mesh::Mesh;
 use glam::{DMat3, DQuat, DVec3, IVec3};
 
@@ -256,6 +256,46 @@ pub fn placed<S: Shape>(shape: S, seed: u64) -> Placed<S> {
         rotation,
         offset,
     }
+}
+
+/// The analytic families measured at seeded placements
+/// (`examples/placements`, `examples/shape_meshes`): the engine's sphere,
+/// torus and ellipsoid, and the segmentation-like thin shapes, each with a
+/// short name (for file names) and a description.
+pub fn placement_families() -> Vec<(&'static str, &'static str, Box<dyn Shape>)> {
+    let sphere = |radius| Sphere {
+        center: DVec3::ZERO,
+        radius,
+    };
+    vec![
+        ("sphere", "voxel sphere r=12", Box::new(sphere(12.0))),
+        ("torus", "voxel torus 20/8", Box::new(tube(20.0, 8.0))),
+        (
+            "ellipsoid",
+            "voxel ellipsoid 30/20/12",
+            Box::new(Ellipsoid {
+                center: DVec3::ZERO,
+                semi_axes: DVec3::new(30.0, 20.0, 12.0),
+            }),
+        ),
+        ("shell2", "shell r=12 t=2", Box::new(shell(12.0, 2.0))),
+        ("shell3", "shell r=12 t=3", Box::new(shell(12.0, 3.0))),
+        ("tube1.5", "tube 12/1.5", Box::new(tube(12.0, 1.5))),
+        ("tube2", "tube 12/2", Box::new(tube(12.0, 2.0))),
+        ("tube3", "tube 12/3", Box::new(tube(12.0, 3.0))),
+        (
+            "tangent",
+            "tangent spheres r=6",
+            Box::new(sphere_pair(6.0, 0.0)),
+        ),
+        (
+            "gap",
+            "spheres r=6 gap 0.5",
+            Box::new(sphere_pair(6.0, 0.5)),
+        ),
+        ("fold2", "folded sheet t=2", Box::new(folded_sheet(2.0))),
+        ("fold3", "folded sheet t=3", Box::new(folded_sheet(3.0))),
+    ]
 }
 
 /// A shell of `thickness` voxels with outer radius `outer`, centred at

@@ -83,15 +83,6 @@ impl<'a> Fidelity<'a> {
         }
     }
 
-    /// Brings `positions` back within the bound without recording which
-    /// vertices it held: for the iterates of a solver, which stay within
-    /// a narrower bound.
-    pub fn apply_quietly(&self, positions: &mut [DVec3]) {
-        if let Some((bound, input)) = self.bound {
-            bound.clamp(input, positions, &[]);
-        }
-    }
-
     /// Vertices held back at least once, by this bound or by another
     /// made from it with [`Fidelity::with_bound`].
     pub fn held_back(&self) -> u64 {
@@ -187,6 +178,18 @@ impl FidelityBound {
         }
     }
 
+    /// The lattice's axes (the standard axes when the mesh has none) and
+    /// the per-vertex sizes in them: a box half-width along each axis
+    /// (positive), a ball radius (negative, stored as its negation), or 0
+    /// for a vertex held fixed. For solvers that iterate in the lattice's
+    /// frame, where a box is a clamp per coordinate.
+    pub fn in_frame(&self) -> ([DVec3; 3], &[f32]) {
+        (
+            self.frame.unwrap_or([DVec3::X, DVec3::Y, DVec3::Z]),
+            &self.size,
+        )
+    }
+
     /// Whether the mesh was recognised as a voxel lattice.
     pub fn has_lattice(&self) -> bool {
         self.frame.is_some()
@@ -194,39 +197,46 @@ impl FidelityBound {
 
     /// Brings every vertex of `positions` back within its bound around
     /// `input` (the same vertex's input position) and marks in `held` the
-    /// vertices it moved (none when `held` is empty). Deterministic and
-    /// parallel per vertex.
+    /// vertices it moved. Deterministic and parallel per vertex.
     fn clamp(&self, input: &[DVec3], positions: &mut [DVec3], held: &[AtomicBool]) {
-        let frame = self.frame.unwrap_or([DVec3::X, DVec3::Y, DVec3::Z]);
         positions
             .par_iter_mut()
             .zip(input)
-            .zip(&self.size[..])
+            .zip(held)
             .enumerate()
             .with_min_len(4096)
-            .for_each(|(v, ((p, &o), &s))| {
-                let d = *p - o;
-                let bounded = if s > 0.0 {
-                    let h = f64::from(s);
-                    let local = DVec3::new(d.dot(frame[0]), d.dot(frame[1]), d.dot(frame[2]));
-                    let c = local.clamp(DVec3::splat(-h), DVec3::splat(h));
-                    if c == local {
-                        return;
-                    }
-                    c.x * frame[0] + c.y * frame[1] + c.z * frame[2]
-                } else {
-                    let r = -f64::from(s);
-                    let len = d.length();
-                    if len <= r {
-                        return;
-                    }
-                    d * (r / len)
-                };
-                *p = o + bounded;
-                if let Some(held) = held.get(v) {
+            .for_each(|(v, ((p, &o), held))| {
+                if let Some(q) = self.bounded(v, o, *p) {
+                    *p = q;
                     held.store(true, Ordering::Relaxed);
                 }
             });
+    }
+
+    /// Position `p` of vertex `v` brought within the bound around its
+    /// input position `o`, or `None` when it is within already.
+    #[inline]
+    fn bounded(&self, v: usize, o: DVec3, p: DVec3) -> Option<DVec3> {
+        let s = *self.size.get(v)?;
+        let d = p - o;
+        let moved = if s > 0.0 {
+            let frame = self.frame.unwrap_or([DVec3::X, DVec3::Y, DVec3::Z]);
+            let h = f64::from(s);
+            let local = DVec3::new(d.dot(frame[0]), d.dot(frame[1]), d.dot(frame[2]));
+            let c = local.clamp(DVec3::splat(-h), DVec3::splat(h));
+            if c == local {
+                return None;
+            }
+            c.x * frame[0] + c.y * frame[1] + c.z * frame[2]
+        } else {
+            let r = -f64::from(s);
+            let len = d.length();
+            if len <= r {
+                return None;
+            }
+            d * (r / len)
+        };
+        Some(o + moved)
     }
 }
 
