@@ -42,7 +42,7 @@ fn main() {
         {
             continue;
         }
-        let shape = &shape;
+        let shape = &*shape;
         for mc in [false, true] {
             let mut rows = Vec::new();
             for seed in 0..PLACEMENTS {

@@ -37,7 +37,7 @@ fn dump(dir: &Path) -> Result<(), String> {
     std::fs::create_dir_all(dir).map_err(|e| e.to_string())?;
     for (short, _, shape) in shapes::placement_families() {
         for seed in 0..PLACEMENTS {
-            let mask = shapes::voxel_mask(&shapes::placed(&shape, seed));
+            let mask = shapes::voxel_mask(&shapes::placed(&*shape, seed));
             for (kind, mesh) in [
                 ("vox", shapes::voxel_boundary_mesh(&mask)),
                 ("mc", shapes::marching_cubes_mesh(&mask)),
@@ -76,7 +76,7 @@ fn rms(short: &str, seed: &str, file: &Path) -> Result<(), String> {
     let doc =
         io::read(&bytes, io::Format::Obj, &io::ReadLimits::default()).map_err(|e| e.to_string())?;
     let positions: &[DVec3] = doc.mesh.positions();
-    let placed = shapes::placed(&shape, seed);
+    let placed = shapes::placed(&*shape, seed);
     println!("{}", shapes::rms_distance(&placed, positions));
     Ok(())
 }

@@ -56,24 +56,6 @@ impl<S: Shape + ?Sized> Shape for &S {
     }
 }
 
-impl<S: Shape + ?Sized> Shape for Box<S> {
-    fn inside(&self, p: DVec3) -> bool {
-        (**self).inside(p)
-    }
-
-    fn distance(&self, p: DVec3) -> f64 {
-        (**self).distance(p)
-    }
-
-    fn volume(&self) -> f64 {
-        (**self).volume()
-    }
-
-    fn bounds(&self) -> (DVec3, DVec3) {
-        (**self).bounds()
-    }
-}
-
 /// Ball of `radius` about `center`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sphere {
