@@ -322,7 +322,6 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
     let mut positions = mesh.positions().to_vec();
     let (initial_fits, input_curvature_variation) =
         timings.time(Stage::Initial, || initial_stage(run, &mut positions))?;
-
     let initial = timings.time(Stage::Report, || {
         measure_stage(
             mesh,

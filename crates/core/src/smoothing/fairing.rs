@@ -22,6 +22,7 @@
 //! the thread count.
 
 use super::fidelity::FidelityBound;
+use super::laplacian::umbrella_step;
 use crate::mesh::Topology;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -77,10 +78,14 @@ pub fn fair(
             d.dot(frame[2]) as f32,
         )
     };
-    let anchor_umbrella: Vec<Vec3> = (0..positions.len())
-        .into_par_iter()
+    let mut means = vec![DVec3::ZERO; positions.len()];
+    let every = vec![true; positions.len()];
+    umbrella_step(topo, &every, 1.0, anchor_positions, &mut means);
+    let anchor_umbrella: Vec<Vec3> = means
+        .par_iter()
+        .zip(anchor_positions)
         .with_min_len(4096)
-        .map(|v| to_frame(umbrella_at_f64(topo, anchor_positions, v)))
+        .map(|(m, a)| to_frame(*m - *a))
         .collect();
     // `x`: the iterate, every vertex within the bound from the start (the
     // held ones too); `y`: the extrapolated point the next gradient is taken
@@ -167,21 +172,10 @@ fn umbrella_at(topo: &Topology, x: &[Vec3], v: usize) -> Vec3 {
     sum / nb.len() as f32 - x[v]
 }
 
-/// [`umbrella_at`] in double precision, for the anchor positions.
-fn umbrella_at_f64(topo: &Topology, x: &[DVec3], v: usize) -> DVec3 {
-    let nb = topo.neighbors(v);
-    if nb.is_empty() {
-        return DVec3::ZERO;
-    }
-    let sum = nb.iter().fold(DVec3::ZERO, |s, &j| s + x[j as usize]);
-    sum / nb.len() as f64 - x[v]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::shapes;
-    use crate::smoothing::fidelity::FidelityBound;
 
     #[test]
     fn fairing_a_voxel_sphere_brings_it_close_within_the_dual_voxels() {

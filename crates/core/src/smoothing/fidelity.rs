@@ -199,44 +199,34 @@ impl FidelityBound {
     /// `input` (the same vertex's input position) and marks in `held` the
     /// vertices it moved. Deterministic and parallel per vertex.
     fn clamp(&self, input: &[DVec3], positions: &mut [DVec3], held: &[AtomicBool]) {
+        let frame = self.frame.unwrap_or([DVec3::X, DVec3::Y, DVec3::Z]);
         positions
             .par_iter_mut()
             .zip(input)
+            .zip(&self.size[..])
             .zip(held)
-            .enumerate()
             .with_min_len(4096)
-            .for_each(|(v, ((p, &o), held))| {
-                if let Some(q) = self.bounded(v, o, *p) {
-                    *p = q;
-                    held.store(true, Ordering::Relaxed);
-                }
+            .for_each(|(((p, &o), &s), held)| {
+                let d = *p - o;
+                let bounded = if s > 0.0 {
+                    let h = f64::from(s);
+                    let local = DVec3::new(d.dot(frame[0]), d.dot(frame[1]), d.dot(frame[2]));
+                    let c = local.clamp(DVec3::splat(-h), DVec3::splat(h));
+                    if c == local {
+                        return;
+                    }
+                    c.x * frame[0] + c.y * frame[1] + c.z * frame[2]
+                } else {
+                    let r = -f64::from(s);
+                    let len = d.length();
+                    if len <= r {
+                        return;
+                    }
+                    d * (r / len)
+                };
+                *p = o + bounded;
+                held.store(true, Ordering::Relaxed);
             });
-    }
-
-    /// Position `p` of vertex `v` brought within the bound around its
-    /// input position `o`, or `None` when it is within already.
-    #[inline]
-    fn bounded(&self, v: usize, o: DVec3, p: DVec3) -> Option<DVec3> {
-        let s = *self.size.get(v)?;
-        let d = p - o;
-        let moved = if s > 0.0 {
-            let frame = self.frame.unwrap_or([DVec3::X, DVec3::Y, DVec3::Z]);
-            let h = f64::from(s);
-            let local = DVec3::new(d.dot(frame[0]), d.dot(frame[1]), d.dot(frame[2]));
-            let c = local.clamp(DVec3::splat(-h), DVec3::splat(h));
-            if c == local {
-                return None;
-            }
-            c.x * frame[0] + c.y * frame[1] + c.z * frame[2]
-        } else {
-            let r = -f64::from(s);
-            let len = d.length();
-            if len <= r {
-                return None;
-            }
-            d * (r / len)
-        };
-        Some(o + moved)
     }
 }
 
