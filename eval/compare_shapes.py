@@ -7,7 +7,11 @@ a family is the smallest worst-of-8 any peer setting reaches.
     pip install numpy scipy pyvista pymeshlab open3d trimesh
     cargo build --release
     cargo build --release -p meshsmooth-core --example shape_meshes
-    python3 eval/compare_shapes.py [--only sphere,tube1.5] [--kinds vox,mc] [--params FILE.json]
+    python3 eval/compare_shapes.py [--only sphere,tube1.5] [--kinds vox,mc] [--params FILE.json] [--no-peers]
+
+`--no-peers` runs meshsmooth alone (a minute, against the peers' half
+hour): its median and worst of 8 and their ratio, to compare two builds or
+parameter files.
 
 The meshes and the distances come from `examples/shape_meshes.rs` (the
 families of `shapes::placement_families`); distances are in voxels.
@@ -49,12 +53,18 @@ def main():
     ap.add_argument("--only", default="", help="comma-separated family names")
     ap.add_argument("--kinds", default="vox,mc")
     ap.add_argument("--params", help="meshsmooth parameter file")
+    ap.add_argument("--no-peers", action="store_true", help="meshsmooth alone")
     args = ap.parse_args()
     families = [f for f in FAMILIES if not args.only or f in args.only.split(",")]
     extra = ["--params", args.params] if args.params else []
-    tools = {"meshsmooth": cp.meshsmooth(args.binary, extra), **cp.sweep()}
-    print("| family | kind | meshsmooth median / worst | best peer worst (median) | setting | ours / best |")
-    print("|---|---|---|---|---|---|")
+    tools = {"meshsmooth": cp.meshsmooth(args.binary, extra)}
+    if args.no_peers:
+        print("| family | kind | meshsmooth median / worst | worst / median |")
+        print("|---|---|---|---|")
+    else:
+        tools.update(cp.sweep())
+        print("| family | kind | meshsmooth median / worst | best peer worst (median) | setting | ours / best |")
+        print("|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run([str(TOOL), "dump", tmp], check=True)
         for family in families:
@@ -68,6 +78,9 @@ def main():
                         continue
                     results[tool] = (float(np.median(r)), max(r))
                 ours = results.pop("meshsmooth")
+                if args.no_peers:
+                    print(f"| {family} | {kind} | {ours[0]:.4f} / {ours[1]:.4f} | {ours[1] / ours[0]:.2f} |", flush=True)
+                    continue
                 best = min(results.items(), key=lambda kv: kv[1][1])
                 print(
                     f"| {family} | {kind} | {ours[0]:.4f} / {ours[1]:.4f} | {best[1][1]:.4f} ({best[1][0]:.4f}) "

@@ -7,10 +7,11 @@
 //! [`shapes::placement_families`] and seeds 0 to 7 (voxel quads and
 //! marching cubes of the same mask);
 //! `... -- rms SHAPE SEED FILE.obj` prints the RMS distance, in voxels, of
-//! the OBJ's vertices (in file order) to that placed shape.
+//! the OBJ's vertices (in file order) to that placed shape; `... -- bias
+//! SHAPE SEED FILE.obj` their mean signed distance (positive outside).
 
 use glam::DVec3;
-use meshsmooth_core::shapes;
+use meshsmooth_core::shapes::{self, Shape};
 use meshsmooth_core::{Mesh, io};
 use std::path::Path;
 use std::process::ExitCode;
@@ -21,8 +22,9 @@ fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let result = match args.iter().map(String::as_str).collect::<Vec<_>>()[..] {
         ["dump", dir] => dump(Path::new(dir)),
-        ["rms", shape, seed, file] => rms(shape, seed, Path::new(file)),
-        _ => Err("usage: shape_meshes dump DIR | rms SHAPE SEED FILE.obj".into()),
+        ["rms", shape, seed, file] => distances(shape, seed, Path::new(file), false),
+        ["bias", shape, seed, file] => distances(shape, seed, Path::new(file), true),
+        _ => Err("usage: shape_meshes dump DIR | rms|bias SHAPE SEED FILE.obj".into()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -66,7 +68,10 @@ fn obj(mesh: &Mesh) -> String {
     out
 }
 
-fn rms(short: &str, seed: &str, file: &Path) -> Result<(), String> {
+/// The RMS distance of `file`'s vertices to the placed shape, or with
+/// `signed` their mean signed distance (positive outside): whether a
+/// smoother leaves the shape too thick or too thin.
+fn distances(short: &str, seed: &str, file: &Path, signed: bool) -> Result<(), String> {
     let seed: u64 = seed.parse().map_err(|_| format!("bad seed {seed}"))?;
     let (_, _, shape) = shapes::placement_families()
         .into_iter()
@@ -77,6 +82,18 @@ fn rms(short: &str, seed: &str, file: &Path) -> Result<(), String> {
         io::read(&bytes, io::Format::Obj, &io::ReadLimits::default()).map_err(|e| e.to_string())?;
     let positions: &[DVec3] = doc.mesh.positions();
     let placed = shapes::placed(&*shape, seed);
-    println!("{}", shapes::rms_distance(&placed, positions));
+    if signed {
+        let sum: f64 = positions
+            .iter()
+            .map(|&p| {
+                placed
+                    .distance(p)
+                    .copysign(if placed.inside(p) { -1.0 } else { 1.0 })
+            })
+            .sum();
+        println!("{}", sum / positions.len().max(1) as f64);
+    } else {
+        println!("{}", shapes::rms_distance(&placed, positions));
+    }
     Ok(())
 }

@@ -214,9 +214,13 @@ pub struct Params {
     /// lattice is held in the box of this half-width along the lattice's
     /// axes (0.5 is its dual voxel, which the true surface crosses: no
     /// vertex of a voxel mesh moves more than `sqrt(3)/2` voxel); any other
-    /// vertex within a ball of this radius. Every smoothing pass, the volume
-    /// restoration and the quality fixes keep to it; the report counts the
-    /// vertices it held back. `null` lets vertices move freely.
+    /// vertex within a ball of this radius. A vertex of a marching-cubes
+    /// mesh of a mask is also held, across the surface, where the surface
+    /// crosses its lattice edge within this many voxel spacings of its
+    /// midpoint (0.5: between the edge's two voxel centres). Every smoothing
+    /// pass, the volume restoration and the quality fixes keep to it; the
+    /// report counts the vertices it held back. `null` lets vertices move
+    /// freely.
     /// Default 0.5; range 0 < d <= 10.
     pub max_displacement: Option<f64>,
     /// What boundary vertices do. Default `fixed`.

@@ -689,14 +689,20 @@ pub fn run(
     let quality_bound = bound.as_ref().map(|b| b.widened(QUALITY_ROOM));
     let fidelity = Fidelity::new(bound.as_ref(), mesh.positions());
     let quality_fidelity = fidelity.with_bound(quality_bound.as_ref());
-    // The bound found the lattice already; without one, only the Wang-Yu
-    // stages ask.
+    // The bound found the lattice or the marching-cubes grid already;
+    // without one, only the Wang-Yu stages ask.
     let lattice = match &bound {
         Some(b) => b.has_lattice(),
         None => params.method == Method::WangYu && is_voxel_lattice(&topo, mesh.positions()),
     };
-    let marching_cubes =
-        params.method == Method::WangYu && !lattice && is_marching_cubes_lattice(mesh.positions());
+    let marching_cubes = match &bound {
+        Some(b) => b.has_marching_cubes(),
+        None => {
+            params.method == Method::WangYu
+                && !lattice
+                && is_marching_cubes_lattice(mesh.positions())
+        }
+    };
     let volume_parts = (params.method == Method::WangYu
         && params.preserve_volume
         && topo.num_boundary_edges() == 0)

@@ -109,9 +109,25 @@ const GRID_TOLERANCE: f64 = 1e-3;
 /// axis-aligned grid (of any spacing per axis and origin): see the module
 /// docs. `O(n log n)`: one sort per axis.
 pub fn is_marching_cubes_lattice(positions: &[DVec3]) -> bool {
+    marching_cubes_edges(positions).is_some()
+}
+
+/// The lattice edge a marching-cubes vertex sits on: the axis it runs
+/// along and the voxel spacing on that axis (the distance between the two
+/// voxel centres it joins).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LatticeEdge {
+    pub axis: u8,
+    pub spacing: f64,
+}
+
+/// Per vertex, the lattice edge it is the midpoint of (`None` for the few
+/// a crop's cut faces put elsewhere), when `positions` is a marching-cubes
+/// mesh of a binary mask ([`is_marching_cubes_lattice`]).
+pub fn marching_cubes_edges(positions: &[DVec3]) -> Option<Vec<Option<LatticeEdge>>> {
     let n = positions.len();
     if n < 8 {
-        return false;
+        return None;
     }
     // Per axis: the grid's origin and half spacing, from the smallest gap
     // between the coordinates' distinct values.
@@ -121,14 +137,11 @@ pub fn is_marching_cubes_lattice(positions: &[DVec3]) -> bool {
         xs.sort_unstable_by(f64::total_cmp);
         let (lo, hi) = (xs[0], xs[n - 1]);
         let tiny = GRID_TOLERANCE * (hi - lo);
-        let Some(half) = xs
+        let half = xs
             .windows(2)
             .map(|w| w[1] - w[0])
             .filter(|&d| d > tiny)
-            .min_by(f64::total_cmp)
-        else {
-            return false;
-        };
+            .min_by(f64::total_cmp)?;
         *g = (lo, half);
     }
     // Each coordinate's parity on its axis's half grid; a coordinate off
@@ -152,13 +165,25 @@ pub fn is_marching_cubes_lattice(positions: &[DVec3]) -> bool {
         .collect();
     // Which parity is the voxel centres' on each axis is not known: try
     // the eight choices; a midpoint has exactly one coordinate off them.
-    (0u8..8).any(|flip| {
+    let flip = (0u8..8).find(|&flip| {
         let midpoints = bits
             .iter()
             .filter(|b| b.is_some_and(|b| (b ^ flip).count_ones() == 1))
             .count();
         midpoints as f64 >= MIDPOINT_SHARE * n as f64
-    })
+    })?;
+    Some(
+        bits.iter()
+            .map(|b| {
+                let off = b.map(|b| b ^ flip).filter(|b| b.count_ones() == 1)?;
+                let axis = off.trailing_zeros() as u8;
+                Some(LatticeEdge {
+                    axis,
+                    spacing: 2.0 * grid[usize::from(axis)].1,
+                })
+            })
+            .collect(),
+    )
 }
 
 #[cfg(test)]
@@ -192,6 +217,25 @@ mod tests {
             })
             .collect();
         assert!(is_marching_cubes_lattice(&scaled));
+    }
+
+    #[test]
+    fn each_marching_cubes_vertex_gets_the_edge_between_an_inside_and_an_outside_centre() {
+        use crate::shapes::Shape;
+        let (sphere, mc) = shapes::mc_sphere(5.0);
+        // Anisotropic voxels: the spacing follows the axis.
+        let spacing = DVec3::new(0.8, 0.8, 1.5);
+        let scaled: Vec<DVec3> = mc.positions().iter().map(|p| *p * spacing).collect();
+        let edges = marching_cubes_edges(&scaled).expect("a marching-cubes mesh");
+        assert_eq!(edges.len(), scaled.len());
+        for (p, edge) in mc.positions().iter().zip(&edges) {
+            let edge = edge.expect("every vertex is a midpoint");
+            let axis = usize::from(edge.axis);
+            assert!((edge.spacing - spacing[axis]).abs() < 1e-9);
+            let mut half = DVec3::ZERO;
+            half[axis] = 0.5;
+            assert_ne!(sphere.inside(*p - half), sphere.inside(*p + half));
+        }
     }
 
     #[test]

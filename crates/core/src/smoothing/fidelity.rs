@@ -12,17 +12,31 @@
 //!   half-width half a voxel around the vertex (its dual voxel): the true
 //!   surface crosses that cube, so the vertex is held inside it, axis by
 //!   axis in the lattice's frame.
-//! - Any other vertex (marching cubes, molecular surfaces, neurons) is held
-//!   within a ball around its input position.
+//! - A vertex of a marching-cubes mesh of a mask sits at the midpoint of a
+//!   lattice edge between an inside and an outside voxel centre: the true
+//!   surface crosses that edge between the two centres. Moving the surface
+//!   by `d` along its unit normal `n` moves its crossing with an edge along
+//!   axis `a` by `d / |n.a|`, so the crossing stays on the edge while
+//!   `|d| <= (spacing / 2) |n.a|`: the vertex is held in that slab about its
+//!   input position, across the surface (along the input's normal averaged
+//!   over a few rings, [`SLAB_NORMAL_SMOOTHING`]), and is free along the
+//!   surface up to the ball below. Without it the fits' bias (a fit to a
+//!   cap lies off the cap where its curvature changes) drifts gyri and
+//!   creases by as much as the ball, past the voxel centres that say where
+//!   the surface is.
+//! - Any vertex off a voxel lattice (marching cubes, molecular surfaces,
+//!   neurons) is held within a ball around its input position.
 //!
-//! Both sizes are `max_displacement` times the vertex's mean input edge
-//! length: 0.5 gives the dual voxel on a lattice, so no vertex of a voxel
-//! mesh moves more than `sqrt(3) / 2` voxel.
+//! The sizes are `max_displacement` times the vertex's mean input edge
+//! length (box and ball) or times the voxel spacing (slab): 0.5 gives the
+//! dual voxel on a lattice, so no vertex of a voxel mesh moves more than
+//! `sqrt(3) / 2` voxel, and the lattice edge on a marching-cubes mesh.
 
 use super::project::mean_edge_at;
-use crate::mesh::lattice::{along_axis, lattice_frame};
-use crate::mesh::{Mesh, Topology};
-use glam::DVec3;
+use crate::fit::normals::vertex_normals_f32_by_faces;
+use crate::mesh::lattice::{along_axis, lattice_frame, marching_cubes_edges};
+use crate::mesh::{Mesh, Topology, VertexKind};
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -83,6 +97,13 @@ impl<'a> Fidelity<'a> {
         }
     }
 
+    /// Whether the bound is placed by a lattice's voxel centres (dual-voxel
+    /// boxes or marching-cubes slabs), not only balls.
+    pub fn on_lattice(&self) -> bool {
+        self.bound
+            .is_some_and(|(b, _)| b.has_lattice() || b.has_marching_cubes())
+    }
+
     /// Vertices held back at least once, by this bound or by another
     /// made from it with [`Fidelity::with_bound`].
     pub fn held_back(&self) -> u64 {
@@ -97,6 +118,24 @@ impl<'a> Fidelity<'a> {
 /// its bound's surface is still allowed after rounding.
 const ALLOW_SLACK: f64 = 1e-9;
 
+/// Steps of averaging each vertex's normal with its neighbours' that give
+/// a marching-cubes vertex the normal of its slab: the faces of a
+/// staircase turn by 45 to 90 degrees from one to the next, and the
+/// surface the mask samples has the normal of their average over a few
+/// rings, the extent of a staircase's step on an oblique surface. Each
+/// step widens the average by about a ring at its edge; from 3 to 12 steps
+/// the analytic families and the WM crop's marching cubes change by 2% or
+/// less (`docs/tuning.md`).
+pub const SLAB_NORMAL_SMOOTHING: u32 = 8;
+
+/// The slab a marching-cubes vertex is held in: `|(p - input) . normal|
+/// <= half_width`.
+#[derive(Debug, Clone, Copy)]
+struct Slab {
+    normal: Vec3,
+    half_width: f32,
+}
+
 /// Per-vertex bound on the distance from the input position, built once
 /// from the input mesh.
 #[derive(Debug, Clone)]
@@ -106,6 +145,10 @@ pub struct FidelityBound {
     /// Per vertex: a box half-width (positive, lattice vertices) or a ball
     /// radius (negative, stored as its negation); 0 holds the vertex fixed.
     size: Arc<[f32]>,
+    /// Per vertex, on a marching-cubes mesh of a mask: the slab across the
+    /// surface that keeps its crossing on the vertex's lattice edge (`None`
+    /// for a vertex off the lattice's edges).
+    slabs: Option<Arc<[Option<Slab>]>>,
 }
 
 impl FidelityBound {
@@ -131,7 +174,12 @@ impl FidelityBound {
             })
             .collect::<Vec<f32>>()
             .into();
-        FidelityBound { frame, size }
+        let slabs = if frame.is_none() {
+            marching_cubes_slabs(mesh, topo, max_displacement)
+        } else {
+            None
+        };
+        FidelityBound { frame, size, slabs }
     }
 
     /// The ball of `factor` times this bound's size at every vertex: the
@@ -140,6 +188,7 @@ impl FidelityBound {
     pub fn widened(&self, factor: f64) -> Self {
         FidelityBound {
             frame: None,
+            slabs: None,
             size: self
                 .size
                 .iter()
@@ -153,6 +202,17 @@ impl FidelityBound {
     pub fn scaled(&self, factor: f64) -> Self {
         FidelityBound {
             frame: self.frame,
+            slabs: self.slabs.as_ref().map(|slabs| {
+                slabs
+                    .iter()
+                    .map(|s| {
+                        s.map(|s| Slab {
+                            half_width: s.half_width * factor as f32,
+                            ..s
+                        })
+                    })
+                    .collect()
+            }),
             size: self
                 .size
                 .iter()
@@ -174,8 +234,21 @@ impl FidelityBound {
                 let h = f64::from(s) * (1.0 + ALLOW_SLACK);
                 f.iter().all(|a| a.dot(d).abs() <= h)
             }
-            _ => d.length() <= f64::from(s).abs() * (1.0 + ALLOW_SLACK),
+            _ => {
+                let in_slab = self.slab(v).is_none_or(|slab| {
+                    d.dot(slab.normal.as_dvec3()).abs()
+                        <= f64::from(slab.half_width) * (1.0 + ALLOW_SLACK)
+                });
+                in_slab && d.length() <= f64::from(s).abs() * (1.0 + ALLOW_SLACK)
+            }
         }
+    }
+
+    /// Vertex `v`'s slab, if it has one.
+    fn slab(&self, v: usize) -> Option<Slab> {
+        self.slabs
+            .as_ref()
+            .and_then(|s| s.get(v).copied().flatten())
     }
 
     /// The lattice's axes (the standard axes when the mesh has none) and
@@ -195,6 +268,12 @@ impl FidelityBound {
         self.frame.is_some()
     }
 
+    /// Whether the mesh was recognised as a marching-cubes mesh of a mask
+    /// (its vertices have slabs).
+    pub fn has_marching_cubes(&self) -> bool {
+        self.slabs.is_some()
+    }
+
     /// Brings every vertex of `positions` back within its bound around
     /// `input` (the same vertex's input position) and marks in `held` the
     /// vertices it moved. Deterministic and parallel per vertex.
@@ -205,8 +284,9 @@ impl FidelityBound {
             .zip(input)
             .zip(&self.size[..])
             .zip(held)
+            .enumerate()
             .with_min_len(4096)
-            .for_each(|(((p, &o), &s), held)| {
+            .for_each(|(v, (((p, &o), &s), held))| {
                 let d = *p - o;
                 let bounded = if s > 0.0 {
                     let h = f64::from(s);
@@ -217,17 +297,75 @@ impl FidelityBound {
                     }
                     c.x * frame[0] + c.y * frame[1] + c.z * frame[2]
                 } else {
+                    // The slab first, then the ball: the ball only shortens
+                    // a move, which keeps it in the slab.
+                    let mut b = d;
+                    if let Some(slab) = self.slab(v) {
+                        let n = slab.normal.as_dvec3();
+                        let w = f64::from(slab.half_width);
+                        let across = b.dot(n);
+                        b -= (across - across.clamp(-w, w)) * n;
+                    }
                     let r = -f64::from(s);
-                    let len = d.length();
-                    if len <= r {
+                    let len = b.length();
+                    if len > r {
+                        b *= r / len;
+                    }
+                    if b == d {
                         return;
                     }
-                    d * (r / len)
+                    b
                 };
                 *p = o + bounded;
                 held.store(true, Ordering::Relaxed);
             });
     }
+}
+
+/// The slabs of a marching-cubes mesh of a mask (see the module docs):
+/// half-width `max_displacement` voxel spacings times the share of the
+/// normal along the vertex's edge; `None` when the mesh is not one.
+fn marching_cubes_slabs(
+    mesh: &Mesh,
+    topo: &Topology,
+    max_displacement: f64,
+) -> Option<Arc<[Option<Slab>]>> {
+    let p = mesh.positions();
+    let edges = marching_cubes_edges(p)?;
+    let mut normals = vertex_normals_f32_by_faces(mesh, topo, p);
+    for _ in 0..SLAB_NORMAL_SMOOTHING {
+        normals = (0..normals.len())
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|v| {
+                let sum = topo
+                    .neighbors(v)
+                    .iter()
+                    .fold(normals[v], |n, &j| n + normals[j as usize]);
+                sum.normalize_or_zero()
+            })
+            .collect();
+    }
+    // A vertex without a normal (a sheet folded onto itself) or without
+    // neighbours gets no slab: the ball alone decides.
+    Some(
+        edges
+            .iter()
+            .zip(&normals)
+            .zip(topo.kinds())
+            .map(|((edge, &normal), &kind)| {
+                let edge = (*edge)?;
+                if normal == Vec3::ZERO || kind == VertexKind::Isolated {
+                    return None;
+                }
+                let share = f64::from(normal[usize::from(edge.axis)].abs());
+                Some(Slab {
+                    normal,
+                    half_width: (max_displacement * edge.spacing * share) as f32,
+                })
+            })
+            .collect(),
+    )
 }
 
 #[cfg(test)]
@@ -248,6 +386,39 @@ mod tests {
         let bound = FidelityBound::new(&mc, &topo, 0.5);
         assert!(!bound.has_lattice());
         assert!(bound.size.iter().all(|&s| s < 0.0));
+    }
+
+    #[test]
+    fn marching_cubes_vertices_move_freely_along_the_surface_and_within_their_edge_across_it() {
+        let (sphere, mc) = shapes::mc_sphere(8.0);
+        let topo = Topology::build(&mc);
+        let bound = FidelityBound::new(&mc, &topo, 0.5);
+        assert!(bound.has_marching_cubes() && !bound.has_lattice());
+        let input = mc.positions();
+        let v = 0;
+        let slab = bound.slab(v).expect("a midpoint has a slab");
+        let n = slab.normal.as_dvec3();
+        let w = f64::from(slab.half_width);
+        // On a sphere the averaged normal is close to the radial one, and
+        // the slab is at most half the edge between two voxel centres.
+        assert!(n.dot((input[v] - sphere.center).normalize()).abs() > 0.95);
+        assert!(w > 0.0 && w <= 0.5 + 1e-6);
+        let tangent = n.any_orthonormal_vector();
+        let mut p = input.to_vec();
+        // Along the surface, inside the ball: allowed as it is.
+        p[v] += 0.2 * tangent;
+        let fidelity = Fidelity::new(Some(&bound), input);
+        fidelity.apply(&mut p);
+        assert_eq!(fidelity.held_back(), 0);
+        assert!((p[v] - input[v] - 0.2 * tangent).length() < 1e-12);
+        // Across it, twice the slab: back within the slab (and the ball).
+        p[v] = input[v] + 2.0 * w * n;
+        fidelity.apply(&mut p);
+        assert_eq!(fidelity.held_back(), 1);
+        let across = (p[v] - input[v]).dot(n);
+        assert!(across > 0.0 && across <= w * (1.0 + 1e-6));
+        assert!(bound.allows(v, input[v], p[v]));
+        assert!(!bound.allows(v, input[v], input[v] + 1.5 * w * n));
     }
 
     #[test]

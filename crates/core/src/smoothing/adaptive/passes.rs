@@ -3,6 +3,7 @@
 //! moved, flat vertices with momentum and an early stop.
 
 use crate::control::{Cancelled, check};
+use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::FitModel;
 use crate::mesh::{Mesh, Topology};
 use crate::smoothing::fidelity::Fidelity;
@@ -148,6 +149,14 @@ pub fn smooth_passes(
         shape_stop,
     } = *plan;
     let mut moves = vec![Vec3::ZERO; positions.len()];
+    // The normals of the starting positions serve every pass: a pass moves
+    // a vertex by a fraction of a voxel, which turns its normal by little,
+    // and the mean move needs only its sign and size along the surface.
+    let debias = fidelity.is_some_and(|f| f.on_lattice()).then(|| {
+        let (component, count) = topo.component_ids();
+        let normals = vertex_normals_f32_by_faces(mesh, topo, positions);
+        (component, count, normals)
+    });
     let last = passes.saturating_sub(1);
     let refits = |p: u32| p == 0 || p == last || refit(p);
     // Fits are kept only when some pass reuses them.
@@ -232,6 +241,9 @@ pub fn smooth_passes(
                 }
             };
         stats.accumulate(s);
+        if let Some((component, count, normals)) = &debias {
+            remove_mean_normal_move(normals, (component, *count), &mut moves);
+        }
         apply(positions, &moves);
         if let Some(f) = fidelity {
             f.apply(positions);
@@ -239,6 +251,43 @@ pub fn smooth_passes(
         on_pass(pass + 1);
     }
     Ok(stats)
+}
+
+/// Takes the mean of `moves` along the vertex `normals`, per connected
+/// component (`component`: each vertex's, and their number; over the
+/// vertices that move), off every move of the component. The fits are
+/// biased along the normal where the curvature is not constant over a
+/// neighbourhood (a fit to a cap lies off it), and over many passes a
+/// surface drifts by a fraction of a voxel, outward on a solid and inward
+/// on a cavity's surface (a shell's inner sphere). The volume restoration
+/// takes that back at the end, but on a lattice, whose bounds (dual
+/// voxels, marching-cubes slabs) are placed by the voxel centres, the
+/// drifted surface is clamped against one face of the bounds first,
+/// unevenly, and the clamps stay. Summed in order in double precision: the
+/// same for any thread count.
+fn remove_mean_normal_move(
+    normals: &[Vec3],
+    (component, count): (&[u32], usize),
+    moves: &mut [Vec3],
+) {
+    let mut sums = vec![(0.0f64, 0u32); count];
+    for ((m, n), &c) in moves.iter().zip(normals).zip(component) {
+        if *m != Vec3::ZERO {
+            let s = &mut sums[c as usize];
+            *s = (s.0 + f64::from(m.dot(*n)), s.1 + 1);
+        }
+    }
+    let means: Vec<f32> = sums
+        .iter()
+        .map(|&(sum, n)| (sum / f64::from(n.max(1))) as f32)
+        .collect();
+    moves
+        .par_iter_mut()
+        .zip(normals)
+        .zip(component)
+        .with_min_len(4096)
+        .filter(|((m, _), _)| **m != Vec3::ZERO)
+        .for_each(|((m, n), &c)| *m -= means[c as usize] * *n);
 }
 
 /// Vertices that move with momentum and stop early in [`smooth_passes`]:
