@@ -35,10 +35,6 @@ import meshmetrics as mm  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 TOOL = ROOT / "target" / "release" / "examples" / "shape_meshes"
 PLACEMENTS = 8
-FAMILIES = [
-    "sphere", "torus", "ellipsoid", "shell2", "shell3", "tube1.5", "tube2", "tube3",
-    "tangent", "gap", "fold2", "fold3",
-]
 
 
 def rms(tmp, shape, seed, verts, faces):
@@ -55,7 +51,8 @@ def main():
     ap.add_argument("--params", help="meshsmooth parameter file")
     ap.add_argument("--no-peers", action="store_true", help="meshsmooth alone")
     args = ap.parse_args()
-    families = [f for f in FAMILIES if not args.only or f in args.only.split(",")]
+    every = subprocess.check_output([str(TOOL), "list"], text=True).split()
+    families = [f for f in every if not args.only or f in args.only.split(",")]
     extra = ["--params", args.params] if args.params else []
     tools = {"meshsmooth": cp.meshsmooth(args.binary, extra)}
     if args.no_peers:

@@ -2,7 +2,9 @@
 //! RMS distance of any smoother's output to the true surface: what
 //! `eval/compare_shapes.py` runs meshsmooth and its peers on.
 //!
-//! `cargo run --release -p meshsmooth-core --example shape_meshes -- dump DIR`
+//! `cargo run --release -p meshsmooth-core --example shape_meshes -- list`
+//! prints the families' short names, in order;
+//! `... -- dump DIR`
 //! writes `DIR/{shape}_{seed}_{vox,mc}.obj` for every family of
 //! [`shapes::placement_families`] and seeds 0 to 7 (voxel quads and
 //! marching cubes of the same mask);
@@ -21,10 +23,16 @@ const PLACEMENTS: u64 = 8;
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let result = match args.iter().map(String::as_str).collect::<Vec<_>>()[..] {
+        ["list"] => {
+            for (short, _, _) in shapes::placement_families() {
+                println!("{short}");
+            }
+            Ok(())
+        }
         ["dump", dir] => dump(Path::new(dir)),
         ["rms", shape, seed, file] => distances(shape, seed, Path::new(file), false),
         ["bias", shape, seed, file] => distances(shape, seed, Path::new(file), true),
-        _ => Err("usage: shape_meshes dump DIR | rms|bias SHAPE SEED FILE.obj".into()),
+        _ => Err("usage: shape_meshes list | dump DIR | rms|bias SHAPE SEED FILE.obj".into()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -204,6 +204,10 @@ struct Run<'a> {
     movable: &'a [bool],
     /// [`VertexMasks::relaxable`].
     relaxable: &'a [bool],
+    /// The vertices the lattice fairing and the adaptive passes move:
+    /// `movable`, less on a voxel lattice the vertices next to a
+    /// non-manifold one ([`away_from_pinches`]).
+    fitted: &'a [bool],
     params: &'a Params,
     /// Whether the input is a voxel lattice ([`is_voxel_lattice`]): its
     /// staircase is relaxed instead of fitted by the initial passes.
@@ -313,7 +317,6 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
     let Run {
         mesh,
         topo,
-        movable,
         params,
         progress,
         cancel,
@@ -352,15 +355,8 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
         } else {
             params.adaptive_passes
         };
-        let away;
-        let movable = if run.lattice {
-            away = away_from_pinches(topo, movable);
-            &away[..]
-        } else {
-            movable
-        };
         let settings = PassSettings {
-            movable,
+            movable: run.fitted,
             passes,
             model: match params.adaptive_fit {
                 AdaptiveFit::Cubic => FitModel::Cubic,
@@ -514,9 +510,8 @@ fn fair_staircase(run: &Run, positions: &mut [DVec3]) {
         return;
     };
     let room = bound.scaled(FAIRING_ROOM);
-    let movable = away_from_pinches(run.topo, run.movable);
     let plan = FairingPlan {
-        movable: &movable,
+        movable: run.fitted,
         iterations: params.lattice_fairing_iterations,
         anchor: params.lattice_fairing_anchor,
         bound: &room,
@@ -707,11 +702,13 @@ pub fn run(
         && params.preserve_volume
         && topo.num_boundary_edges() == 0)
         .then(|| VolumeParts::new(mesh, &topo));
+    let away = lattice.then(|| away_from_pinches(&topo, &masks.movable));
     let run = Run {
         mesh,
         topo: &topo,
         movable: &masks.movable,
         relaxable: &masks.relaxable,
+        fitted: away.as_deref().unwrap_or(&masks.movable),
         params,
         lattice,
         marching_cubes,

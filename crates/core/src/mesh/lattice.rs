@@ -117,7 +117,9 @@ pub fn is_marching_cubes_lattice(positions: &[DVec3]) -> bool {
 /// voxel centres it joins).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LatticeEdge {
+    /// The axis (0, 1, 2: x, y, z) the edge runs along.
     pub axis: u8,
+    /// The voxel spacing along that axis.
     pub spacing: f64,
 }
 

@@ -35,7 +35,7 @@
 use super::project::mean_edge_at;
 use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::mesh::lattice::{along_axis, lattice_frame, marching_cubes_edges};
-use crate::mesh::{Mesh, Topology, VertexKind};
+use crate::mesh::{Mesh, Topology};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -346,16 +346,15 @@ fn marching_cubes_slabs(
             })
             .collect();
     }
-    // A vertex without a normal (a sheet folded onto itself) or without
-    // neighbours gets no slab: the ball alone decides.
+    // A vertex without a normal (one without faces, a sheet folded onto
+    // itself) gets no slab: the ball alone decides.
     Some(
         edges
             .iter()
             .zip(&normals)
-            .zip(topo.kinds())
-            .map(|((edge, &normal), &kind)| {
+            .map(|(edge, &normal)| {
                 let edge = (*edge)?;
-                if normal == Vec3::ZERO || kind == VertexKind::Isolated {
+                if normal == Vec3::ZERO {
                     return None;
                 }
                 let share = f64::from(normal[usize::from(edge.axis)].abs());
