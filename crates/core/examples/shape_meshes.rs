@@ -10,7 +10,9 @@
 //! marching cubes of the same mask);
 //! `... -- rms SHAPE SEED FILE.obj` prints the RMS distance, in voxels, of
 //! the OBJ's vertices (in file order) to that placed shape; `... -- bias
-//! SHAPE SEED FILE.obj` their mean signed distance (positive outside).
+//! SHAPE SEED FILE.obj` their mean signed distance (positive outside);
+//! `... -- signed SHAPE SEED FILE.obj` each vertex's signed distance, one
+//! per line, for a look at where the error is.
 
 use glam::DVec3;
 use meshsmooth_core::shapes::{self, Shape};
@@ -30,9 +32,12 @@ fn main() -> ExitCode {
             Ok(())
         }
         ["dump", dir] => dump(Path::new(dir)),
-        ["rms", shape, seed, file] => distances(shape, seed, Path::new(file), false),
-        ["bias", shape, seed, file] => distances(shape, seed, Path::new(file), true),
-        _ => Err("usage: shape_meshes list | dump DIR | rms|bias SHAPE SEED FILE.obj".into()),
+        ["rms", shape, seed, file] => distances(shape, seed, Path::new(file), Report::Rms),
+        ["bias", shape, seed, file] => distances(shape, seed, Path::new(file), Report::Bias),
+        ["signed", shape, seed, file] => distances(shape, seed, Path::new(file), Report::Signed),
+        _ => {
+            Err("usage: shape_meshes list | dump DIR | rms|bias|signed SHAPE SEED FILE.obj".into())
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -76,10 +81,21 @@ fn obj(mesh: &Mesh) -> String {
     out
 }
 
-/// The RMS distance of `file`'s vertices to the placed shape, or with
-/// `signed` their mean signed distance (positive outside): whether a
-/// smoother leaves the shape too thick or too thin.
-fn distances(short: &str, seed: &str, file: &Path, signed: bool) -> Result<(), String> {
+/// What [`distances`] prints of the vertices' distances to the shape.
+#[derive(Clone, Copy, PartialEq)]
+enum Report {
+    /// Their RMS.
+    Rms,
+    /// Their mean signed distance (positive outside): whether a smoother
+    /// leaves the shape too thick or too thin.
+    Bias,
+    /// Each vertex's signed distance, in file order.
+    Signed,
+}
+
+/// The distances of `file`'s vertices to the placed shape, as `report`
+/// asks.
+fn distances(short: &str, seed: &str, file: &Path, report: Report) -> Result<(), String> {
     let seed: u64 = seed.parse().map_err(|_| format!("bad seed {seed}"))?;
     let (_, _, shape) = shapes::placement_families()
         .into_iter()
@@ -90,18 +106,22 @@ fn distances(short: &str, seed: &str, file: &Path, signed: bool) -> Result<(), S
         io::read(&bytes, io::Format::Obj, &io::ReadLimits::default()).map_err(|e| e.to_string())?;
     let positions: &[DVec3] = doc.mesh.positions();
     let placed = shapes::placed(&*shape, seed);
-    if signed {
-        let sum: f64 = positions
-            .iter()
-            .map(|&p| {
-                placed
-                    .distance(p)
-                    .copysign(if placed.inside(p) { -1.0 } else { 1.0 })
-            })
-            .sum();
-        println!("{}", sum / positions.len().max(1) as f64);
-    } else {
-        println!("{}", shapes::rms_distance(&placed, positions));
+    let signed = |p: DVec3| {
+        placed
+            .distance(p)
+            .copysign(if placed.inside(p) { -1.0 } else { 1.0 })
+    };
+    match report {
+        Report::Rms => println!("{}", shapes::rms_distance(&placed, positions)),
+        Report::Bias => {
+            let sum: f64 = positions.iter().map(|&p| signed(p)).sum();
+            println!("{}", sum / positions.len().max(1) as f64);
+        }
+        Report::Signed => {
+            for &p in positions {
+                println!("{}", signed(p));
+            }
+        }
     }
     Ok(())
 }

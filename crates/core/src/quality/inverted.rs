@@ -22,7 +22,7 @@
 //! stops after a sweep that changes nothing, when none is left, or after
 //! `max_sweeps`. Only interior vertices move.
 
-use super::local::{MoveTester, is_inverted};
+use super::local::{MoveTester, Verdict, is_inverted};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
@@ -90,7 +90,8 @@ pub fn fix_inverted_faces(
             if !is_inverted(mesh.face(f as usize), positions, input) {
                 continue; // opened by an earlier move of this sweep
             }
-            cluster.gather(mesh, topo, f, positions, input);
+            let bad = |g: u32| is_inverted(mesh.face(g as usize), positions, input);
+            cluster.gather(mesh, topo, f, positions, input, bad);
             if cluster.vertices.is_empty() || cluster.faces.len() > MAX_CLUSTER_FACES {
                 stats.rejected += 1;
                 continue;
@@ -100,7 +101,12 @@ pub fn fix_inverted_faces(
                 if widening > 0 && !cluster.widen(topo, positions, input) {
                     break;
                 }
-                if let Some(moved) = cluster.retreat(mesh, topo, positions, input, &mut tester) {
+                let opens = |v: &Verdict| {
+                    !v.new_defect && v.inverted.1 < v.inverted.0 && v.twisted.1 <= v.twisted.0
+                };
+                if let Some(moved) =
+                    cluster.retreat(mesh, topo, positions, input, &mut tester, 1.0, opens)
+                {
                     stats.retreats += 1;
                     stats.vertices_moved += moved as u64;
                     opened = true;
@@ -124,29 +130,32 @@ pub fn fix_inverted_faces(
 }
 
 /// True when vertex `v` is interior and away from its input position.
-fn movable(topo: &Topology, v: usize, positions: &[DVec3], input: &[DVec3]) -> bool {
+pub(super) fn movable(topo: &Topology, v: usize, positions: &[DVec3], input: &[DVec3]) -> bool {
     topo.kind(v) == VertexKind::Interior && positions[v] != input[v]
 }
 
-/// The vertices of a cluster of inverted faces that can move back (interior,
-/// away from the input), with scratch.
+/// The vertices of a cluster of faces in need of repair (inverted faces
+/// here, slivers in [`super::sliver`]) that can move back (interior, away
+/// from the input), with scratch.
 #[derive(Debug, Default)]
-struct Cluster {
-    vertices: Vec<usize>,
-    faces: Vec<u32>,
+pub(super) struct Cluster {
+    pub(super) vertices: Vec<usize>,
+    pub(super) faces: Vec<u32>,
     moves: Vec<(usize, DVec3)>,
 }
 
 impl Cluster {
-    /// The inverted faces reachable from face `f` through shared vertices,
-    /// and their interior vertices.
-    fn gather(
+    /// The faces for which `bad` holds reachable from face `f` through
+    /// shared vertices (at most [`MAX_CLUSTER_FACES`] and one more), and
+    /// their vertices that can move back.
+    pub(super) fn gather(
         &mut self,
         mesh: &Mesh,
         topo: &Topology,
         f: u32,
         positions: &[DVec3],
         input: &[DVec3],
+        bad: impl Fn(u32) -> bool,
     ) {
         self.faces.clear();
         self.vertices.clear();
@@ -164,10 +173,7 @@ impl Cluster {
                     self.vertices.push(v);
                 }
                 for &g in topo.vertex_faces(v) {
-                    if self.faces.len() <= MAX_CLUSTER_FACES
-                        && !self.faces.contains(&g)
-                        && is_inverted(mesh.face(g as usize), positions, input)
-                    {
+                    if self.faces.len() <= MAX_CLUSTER_FACES && !self.faces.contains(&g) && bad(g) {
                         self.faces.push(g);
                     }
                 }
@@ -177,7 +183,7 @@ impl Cluster {
 
     /// Adds the neighbours of the cluster's vertices that can move back;
     /// false when there is none to add.
-    fn widen(&mut self, topo: &Topology, positions: &[DVec3], input: &[DVec3]) -> bool {
+    pub(super) fn widen(&mut self, topo: &Topology, positions: &[DVec3], input: &[DVec3]) -> bool {
         let before = self.vertices.len();
         for i in 0..before {
             for &w in topo.neighbors(self.vertices[i]) {
@@ -190,17 +196,21 @@ impl Cluster {
         self.vertices.len() > before
     }
 
-    /// Tries the retreats of the cluster's vertices; applies the first
-    /// accepted one and returns how many vertices it moved.
-    fn retreat(
+    /// Tries the [`RETREATS`] of the cluster's vertices, smallest first,
+    /// judged against the angle goal `cos_goal`; applies the first that
+    /// `accept`s and returns how many vertices it moved.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn retreat(
         &mut self,
         mesh: &Mesh,
         topo: &Topology,
         positions: &mut [DVec3],
         input: &[DVec3],
         tester: &mut MoveTester,
+        cos_goal: f64,
+        accept: impl Fn(&Verdict) -> bool,
     ) -> Option<usize> {
-        tester.begin(mesh, topo, &self.vertices, positions, input, 1.0);
+        tester.begin(mesh, topo, &self.vertices, positions, input, cos_goal);
         for t in RETREATS {
             self.moves.clear();
             self.moves.extend(
@@ -208,8 +218,7 @@ impl Cluster {
                     .iter()
                     .map(|&v| (v, positions[v] + t * (input[v] - positions[v]))),
             );
-            let v = tester.judge(mesh, &self.moves, positions);
-            if !v.new_defect && v.inverted.1 < v.inverted.0 && v.twisted.1 <= v.twisted.0 {
+            if accept(&tester.judge(mesh, &self.moves, positions)) {
                 for &(w, p) in &self.moves {
                     positions[w] = p;
                 }

@@ -12,8 +12,8 @@
 //! removes a twisted quad or an inverted face may shrink it: defects
 //! outrank angles). [`improve`] runs them in the order twisted quads, short
 //! edges, sharp angles, inverted faces (then sharp angles once more when
-//! that moved anything). All are deterministic and independent of the
-//! number of threads.
+//! that moved anything), slivers. All are deterministic and independent of
+//! the number of threads.
 
 #[cfg(test)]
 pub(crate) mod fixtures;
@@ -21,11 +21,13 @@ pub mod inverted;
 pub(crate) mod local;
 pub mod sharp_angle;
 pub mod short_edge;
+pub mod sliver;
 pub mod twisted;
 
 pub use inverted::{InvertedStats, fix_inverted_faces};
 pub use sharp_angle::{SharpAngleStats, fix_sharp_angles};
 pub use short_edge::{ShortEdgeStats, fix_short_edges};
+pub use sliver::{SliverStats, fix_slivers};
 pub use twisted::{TwistedStats, fix_twisted_quads};
 
 use crate::mesh::{Mesh, Topology};
@@ -76,14 +78,24 @@ pub struct QualityFixStats {
     pub sharp_angles: SharpAngleStats,
     /// Inverted-face (fold) fix.
     pub inverted: InvertedStats,
+    /// Sliver fix.
+    pub slivers: SliverStats,
 }
+
+/// The sliver fix's floor as a fraction of [`QualityParams::sharp_angle_deg`]:
+/// a face the sharp-angle fix leaves between the floor and the threshold is
+/// sharp but sound, one below half of it is a sliver worth giving up the
+/// smoothing around it (10 degrees at the default threshold, the smallest
+/// angle the real masks' results are held to).
+pub const SLIVER_FRACTION: f64 = 0.5;
 
 /// Runs the fixes on `positions` (one per vertex, moved in place) with
 /// `input` the input positions (one per vertex, the reference for inverted
 /// faces): twisted quads, then short edges, then sharp angles, then the
 /// folds the sharp-angle fix's single-vertex moves could not open (and, if
 /// that moved a vertex, sharp angles again, its counts added to the
-/// first run's), each at most `params.max_sweeps` sweeps. Surface fits leave out
+/// first run's), then the slivers neither could open
+/// ([`SLIVER_FRACTION`]), each at most `params.max_sweeps` sweeps. Surface fits leave out
 /// neighbours facing away by a cosine below `min_normal_cos`
 /// ([`crate::Params::min_normal_cos`]). No move takes a vertex out of
 /// `bound` around its input position. Does nothing when `params.enabled`
@@ -134,11 +146,21 @@ pub fn improve(
         sharp_angles.sweeps += again.sweeps;
         sharp_angles.faces_remaining = again.faces_remaining;
     }
+    let slivers = fix_slivers(
+        mesh,
+        topo,
+        positions,
+        input,
+        bound,
+        SLIVER_FRACTION * params.sharp_angle_deg,
+        sweeps,
+    );
     QualityFixStats {
         twisted,
         short_edges,
         sharp_angles,
         inverted,
+        slivers,
     }
 }
 

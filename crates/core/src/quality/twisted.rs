@@ -20,6 +20,7 @@
 //! twisted; the fix stops after a sweep that changes nothing, when none is
 //! left, or after `max_sweeps`. Only interior vertices move.
 
+use super::inverted::RETREATS;
 use super::local::{MoveTester, Verdict, is_twisted};
 use super::sharp_angle::{Relocator, Visit};
 use crate::mesh::{Mesh, Topology, VertexKind};
@@ -38,6 +39,8 @@ pub struct TwistedStats {
     pub swaps: u64,
     /// Accepted single-vertex relocations.
     pub relocations: u64,
+    /// Accepted moves of a quad's corners toward their input positions.
+    pub retreats: u64,
     /// Tried moves refused because they would have made something worse.
     pub rejected: u64,
     /// Sweeps run.
@@ -93,6 +96,7 @@ pub fn fix_twisted_quads(
                 continue;
             }
             // Relocate a corner: keep the first that untwists.
+            let mut relocated = false;
             for &corner in &face[..4] {
                 let v = corner as usize;
                 if topo.kind(v) != VertexKind::Interior {
@@ -107,11 +111,16 @@ pub fn fix_twisted_quads(
                     if count_twisted_around(mesh, topo, v, positions) < before {
                         stats.relocations += 1;
                         changed = true;
+                        relocated = true;
                         break;
                     }
                     positions[v] = saved;
                 }
                 stats.rejected += 1;
+            }
+            if !relocated && retreat_corners(mesh, topo, f, positions, input, &mut tester) {
+                stats.retreats += 1;
+                changed = true;
             }
         }
         let p: &[DVec3] = positions;
@@ -122,6 +131,50 @@ pub fn fix_twisted_quads(
     }
     stats.remaining = twisted_quads(mesh, positions).len() as u64;
     stats
+}
+
+/// Moves the interior corners of quad `f` toward their input positions,
+/// one corner alone (in corner order) and then all of them together, each
+/// by the smallest of [`RETREATS`] that untwists the quad and adds no
+/// defect; keeps the first such move.
+fn retreat_corners(
+    mesh: &Mesh,
+    topo: &Topology,
+    f: u32,
+    positions: &mut [DVec3],
+    input: &[DVec3],
+    tester: &mut MoveTester,
+) -> bool {
+    let face = mesh.face(f as usize);
+    let mut corners = [0usize; 4];
+    let mut n = 0;
+    for &c in &face[..4] {
+        let v = c as usize;
+        if topo.kind(v) == VertexKind::Interior && positions[v] != input[v] {
+            corners[n] = v;
+            n += 1;
+        }
+    }
+    let corners = &corners[..n];
+    let singles = corners.iter().map(std::slice::from_ref);
+    let all = (n > 1).then_some(corners);
+    for group in singles.chain(all) {
+        tester.begin(mesh, topo, group, positions, input, 1.0);
+        for t in RETREATS {
+            let mut moves = [(0usize, DVec3::ZERO); 4];
+            for (m, &v) in moves.iter_mut().zip(group) {
+                *m = (v, positions[v] + t * (input[v] - positions[v]));
+            }
+            let moves = &moves[..group.len()];
+            if untwists(&tester.judge(mesh, moves, positions)) {
+                for &(v, p) in moves {
+                    positions[v] = p;
+                }
+                return true;
+            }
+        }
+    }
+    false
 }
 
 fn count_twisted_around(mesh: &Mesh, topo: &Topology, v: usize, positions: &[DVec3]) -> u32 {
@@ -215,6 +268,32 @@ mod tests {
         assert_eq!(after.twisted_quads, 0);
         assert!(after.inverted_faces <= before.inverted_faces);
         assert!(p.iter().all(|q| q.z.abs() <= 0.2), "stays near the plane");
+    }
+
+    #[test]
+    fn a_twisted_quad_goes_back_toward_the_input() {
+        // The fixture of the relocation test, without the relocation: its
+        // corners move back toward the input by the smallest fraction that
+        // untwists it.
+        let m = grid(4);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let mut p = input.clone();
+        let v = at(4, 2, 2);
+        p[v] = DVec3::new(0.8, 1.5, 0.1);
+        let f = (0..m.num_faces() as u32)
+            .find(|&f| is_twisted(m.face(f as usize), &p))
+            .expect("the fixture twists a quad");
+        let twisted = p.clone();
+        let mut tester = MoveTester::default();
+        assert!(retreat_corners(&m, &t, f, &mut p, &input, &mut tester));
+        assert!(!is_twisted(m.face(f as usize), &p));
+        let moved: Vec<usize> = (0..p.len()).filter(|&w| p[w] != twisted[w]).collect();
+        assert_eq!(moved, [v]);
+        let back = (p[v] - twisted[v]).length() / (input[v] - twisted[v]).length();
+        assert!(RETREATS.iter().any(|&r| (r - back).abs() < 1e-12), "{back}");
+        let after = measure_stage(&m, &t, &p, &input, None, 0.2);
+        assert_eq!((after.twisted_quads, after.inverted_faces), (0, 0));
     }
 
     #[test]

@@ -12,7 +12,7 @@ pub use measures::{mean_curvature_variation, measure_stage, mesh_statistics};
 
 use crate::params::{Method, Params};
 pub use crate::quality::{
-    InvertedStats, QualityFixStats, SharpAngleStats, ShortEdgeStats, TwistedStats,
+    InvertedStats, QualityFixStats, SharpAngleStats, ShortEdgeStats, SliverStats, TwistedStats,
 };
 use crate::smoothing::label::Label;
 use crate::smoothing::project::FitStats;
@@ -22,7 +22,7 @@ use sha2::{Digest, Sha256};
 /// Version of the report's JSON schema: the major number changes when a
 /// field is removed or changes meaning, the minor number when fields are
 /// added.
-pub const SCHEMA_VERSION: &str = "2.0";
+pub const SCHEMA_VERSION: &str = "2.1";
 
 /// Width of one angle-histogram bin, in degrees.
 pub const ANGLE_BIN_DEG: f64 = 5.0;

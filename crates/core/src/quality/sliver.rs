@@ -1,0 +1,183 @@
+//! Sliver fix (an addition to the paper's section 2.4): a face whose
+//! smallest split-triangle angle the sharp-angle fix left far below its
+//! threshold.
+//!
+//! The sharp-angle fix moves one vertex at a time onto its local fitted
+//! surface. Where the smoothing squeezed a triangle between neighbours that
+//! moved across a thin sheet or a crease, every such move is refused and a
+//! sliver of a degree or two can remain. The input has no such sliver (a
+//! marching-cubes mesh's smallest angle is 30 degrees, a voxel mesh's 45),
+//! so, like the fold fix ([`super::inverted`]), this fix moves the sliver's
+//! movable vertices back toward the input: a cluster of slivers (faces
+//! sharing a vertex) goes back together by the smallest of the
+//! [`RETREATS`](super::inverted::RETREATS) that lifts every angle around it
+//! to the floor and makes nothing worse (see `MoveTester`), taking in one
+//! ring more at most
+//! [`MAX_WIDENINGS`] times; when none does, by the smallest that widens the
+//! cluster's smallest angle. Smoothing is given up only where a sliver was.
+//!
+//! Order: sequential, slivers in ascending face order (deterministic); a
+//! sweep rescans the slivers left; the fix stops after a sweep that
+//! changes nothing, when none is left, or after `max_sweeps`. Only
+//! interior vertices move.
+
+use super::inverted::{Cluster, MAX_CLUSTER_FACES, MAX_WIDENINGS};
+use super::local::{MoveTester, Verdict, has_repeated_corner, max_split_cos};
+use crate::mesh::{Mesh, Topology};
+use crate::smoothing::fidelity::FidelityBound;
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// What the sliver fix did.
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SliverStats {
+    /// Faces with a split-triangle angle below the floor before the fix
+    /// (and not in the input).
+    pub found: u64,
+    /// Accepted cluster moves towards the input.
+    pub retreats: u64,
+    /// Vertices those moves moved (a vertex moved twice counts twice).
+    pub vertices_moved: u64,
+    /// Clusters no tried move improved.
+    pub rejected: u64,
+    /// Sweeps run.
+    pub sweeps: u64,
+    /// Such faces after the fix.
+    pub remaining: u64,
+}
+
+/// Whether `face` has a split-triangle angle whose cosine exceeds
+/// `cos_floor` at `positions` but not at `input`: going back cannot open a
+/// sliver the input already had (a decimated neuron's). A face with a
+/// repeated corner never counts.
+fn is_sliver(face: &[u32], positions: &[DVec3], input: &[DVec3], cos_floor: f64) -> bool {
+    !has_repeated_corner(face)
+        && max_split_cos(face, positions) > cos_floor
+        && max_split_cos(face, input) <= cos_floor
+}
+
+fn slivers(mesh: &Mesh, positions: &[DVec3], input: &[DVec3], cos_floor: f64) -> Vec<u32> {
+    (0..mesh.num_faces() as u32)
+        .into_par_iter()
+        .with_min_len(4096)
+        .filter(|&f| is_sliver(mesh.face(f as usize), positions, input, cos_floor))
+        .collect()
+}
+
+/// Moves the slivers' vertices (faces with a split-triangle angle below
+/// `floor_deg` that the input did not have) back towards `input` (one position per vertex, like
+/// `positions`, which are moved in place); at most `max_sweeps` sweeps.
+pub fn fix_slivers(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &mut [DVec3],
+    input: &[DVec3],
+    bound: Option<&FidelityBound>,
+    floor_deg: f64,
+    max_sweeps: u32,
+) -> SliverStats {
+    let cos_floor = floor_deg.to_radians().cos();
+    let mut left = slivers(mesh, positions, input, cos_floor);
+    let mut stats = SliverStats {
+        found: left.len() as u64,
+        ..SliverStats::default()
+    };
+    let mut tester = MoveTester::bounded(bound);
+    let mut cluster = Cluster::default();
+    let clean =
+        |v: &Verdict| !v.new_defect && v.inverted.1 <= v.inverted.0 && v.twisted.1 <= v.twisted.0;
+    while !left.is_empty() && stats.sweeps < max_sweeps as u64 {
+        stats.sweeps += 1;
+        let mut changed = false;
+        for &f in &left {
+            if !is_sliver(mesh.face(f as usize), positions, input, cos_floor) {
+                continue; // opened by an earlier move of this sweep
+            }
+            let bad = |g: u32| is_sliver(mesh.face(g as usize), positions, input, cos_floor);
+            cluster.gather(mesh, topo, f, positions, input, bad);
+            if cluster.vertices.is_empty() || cluster.faces.len() > MAX_CLUSTER_FACES {
+                stats.rejected += 1;
+                continue;
+            }
+            let lifts = |v: &Verdict| clean(v) && v.max_cos.1 <= cos_floor;
+            let widens = |v: &Verdict| clean(v) && v.max_cos.1 < v.max_cos.0;
+            let mut moved = None;
+            for widening in 0..=MAX_WIDENINGS {
+                if widening > 0 && !cluster.widen(topo, positions, input) {
+                    break;
+                }
+                moved =
+                    cluster.retreat(mesh, topo, positions, input, &mut tester, cos_floor, lifts);
+                if moved.is_some() {
+                    break;
+                }
+            }
+            let moved = moved.or_else(|| {
+                cluster.retreat(mesh, topo, positions, input, &mut tester, cos_floor, widens)
+            });
+            match moved {
+                Some(n) => {
+                    stats.retreats += 1;
+                    stats.vertices_moved += n as u64;
+                    changed = true;
+                }
+                None => stats.rejected += 1,
+            }
+        }
+        let p: &[DVec3] = positions;
+        left.retain(|&f| is_sliver(mesh.face(f as usize), p, input, cos_floor));
+        if !changed {
+            break;
+        }
+    }
+    stats.remaining = slivers(mesh, positions, input, cos_floor).len() as u64;
+    stats
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quality::fixtures::{at, grid, min_split_angle};
+
+    #[test]
+    fn a_sliver_goes_back_by_the_smallest_fraction_that_lifts_it() {
+        // Vertex (3, 3) pushed down to y = 2.1: the split triangle
+        // (2,2) (3,2) (3,3) of the quad below it closes to 5.7 degrees.
+        let m = grid(6);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let a = at(6, 3, 3);
+        let mut p = input.clone();
+        p[a] = DVec3::new(3.0, 2.1, 0.0);
+        assert!(min_split_angle(&m, &p, None) < 6.0);
+        let squeezed = p.clone();
+        let stats = fix_slivers(&m, &t, &mut p, &input, None, 10.0, 10);
+        assert_eq!((stats.retreats, stats.remaining), (1, 0), "{stats:?}");
+        // An eighth of the way back (y = 2.2125) lifts that triangle to 12
+        // degrees but closes (3,2) (4,3) (3,3) of the quad to its right to
+        // 7; a quarter (y = 2.325) leaves both above 10.
+        assert!(
+            (p[a] - DVec3::new(3.0, 2.325, 0.0)).length() < 1e-12,
+            "{}",
+            p[a]
+        );
+        assert!(min_split_angle(&m, &p, None) >= 10.0);
+        for v in (0..p.len()).filter(|&v| v != a) {
+            assert_eq!(p[v], squeezed[v], "vertex {v} is not the sliver's");
+        }
+    }
+
+    #[test]
+    fn a_sliver_the_input_had_is_left_alone() {
+        let m = grid(6);
+        let t = Topology::build(&m);
+        let mut input = m.positions().to_vec();
+        input[at(6, 3, 3)] = DVec3::new(3.0, 2.1, 0.0);
+        let mut p = input.clone();
+        let stats = fix_slivers(&m, &t, &mut p, &input, None, 10.0, 10);
+        assert_eq!((stats.found, stats.retreats), (0, 0), "{stats:?}");
+        assert_eq!(p, input);
+    }
+}
