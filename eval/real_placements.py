@@ -10,8 +10,8 @@ centre, and the truth is the surface where it equals 127.5 (meshmetrics.Truth),
 so every placement is a mask of the same continuous surface, sampled by
 another grid: what a scanner puts wherever the head lies. Placement 0 is the
 map's own grid (its voxel quads are the data folder's mesh); the others take a
-random sub-voxel offset and a random rotation, seeded by the placement's
-number. The meshes are made here the way the data folder's were: voxel quads
+random sub-voxel offset and a random rotation (`--no-rotation`: the offset
+alone), seeded by the placement's number. The meshes are made here the way the data folder's were: voxel quads
 with every boundary face of the mask (corners shared, non-manifold where
 voxels touch along an edge or at a corner), marching cubes by scikit-image at
 level 0.5 on the mask. The WM crop is measured over the vertices at least 3
@@ -46,8 +46,9 @@ MAPS = {
 LEVEL = 127.5
 
 
-def placement(seed, shape):
-    """The rotation and the offset of placement `seed` (0: the map's grid)."""
+def placement(seed, rotate=True):
+    """The rotation and the offset of placement `seed` (0: the map's grid;
+    without `rotate`, the offset alone)."""
     if seed == 0:
         return np.eye(3), np.zeros(3)
     rng = np.random.default_rng(seed)
@@ -61,7 +62,7 @@ def placement(seed, shape):
             [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
         ]
     )
-    return rot, rng.uniform(0.0, 1.0, 3)
+    return (rot if rotate else np.eye(3)), rng.uniform(0.0, 1.0, 3)
 
 
 def resampled_mask(data, rot, offset):
@@ -158,6 +159,11 @@ def main():
     ap.add_argument("--placements", type=int, default=4)
     ap.add_argument("--only", default="", help="comma-separated map names: " + ",".join(MAPS))
     ap.add_argument("--no-peers", action="store_true", help="meshsmooth alone")
+    ap.add_argument(
+        "--no-rotation",
+        action="store_true",
+        help="sub-voxel offsets only, the grid's axes kept (marching-cubes grids are recognised only so)",
+    )
     ap.add_argument("--dump", help="also write each placement's meshes to this folder, as NAME_SEED_KIND.obj")
     args = ap.parse_args()
     import nibabel as nib
@@ -176,7 +182,7 @@ def main():
         print("| placement | mesh | vertices | input | meshsmooth | best peer | ratio | setting | ours flipped/twisted/min angle/max move |")
         print("|---|---|---|---|---|---|---|---|---|")
         for seed in range(args.placements):
-            rot, offset = placement(seed, data.shape)
+            rot, offset = placement(seed, not args.no_rotation)
             mask, to_data = resampled_mask(data, rot, offset)
             qv, qf = voxel_quads(mask)
             mv, mf = marching_cubes(mask, mm.signed_volume(qv, mm.triangles(qf)))

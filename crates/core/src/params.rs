@@ -68,6 +68,14 @@ pub struct Params {
     /// Passes of initial smoothing with fixed 2-ring fits (section 2.2).
     /// Default 3; range 0..=100.
     pub initial_passes: u32,
+    /// `initial_passes` on a marching-cubes mesh of a mask: the staircase
+    /// relaxation after the first pass has done most of their work, and a
+    /// third pass of 2-ring fits flattens a thin sheet's folds (a cortical
+    /// ribbon one or two voxels thick) where the adaptive passes cannot
+    /// bring them back. Chosen from 1, 2 and 3 on the WM crop and GM masks
+    /// at four grid placements each and on the analytic families
+    /// (`docs/tuning.md`). Default 2; range 0..=100.
+    pub marching_cubes_initial_passes: u32,
     /// Passes of adaptive smoothing (section 2.3). Default 22; range 0..=200:
     /// enough passes to damp a large sphere's long staircase waves, few
     /// enough that a surface of changing curvature does not drift
@@ -256,6 +264,7 @@ impl Default for Params {
         Params {
             method: Method::WangYu,
             initial_passes: 3,
+            marching_cubes_initial_passes: 2,
             adaptive_passes: 22,
             lattice_adaptive_passes: 16,
             adaptive_fit: AdaptiveFit::Cubic,
@@ -376,6 +385,13 @@ impl Params {
     /// Checks every range; the error names the field and the allowed range.
     pub fn validate(&self) -> Result<(), ParamError> {
         check_u32("initial_passes", self.initial_passes, 0, 100, "0..=100")?;
+        check_u32(
+            "marching_cubes_initial_passes",
+            self.marching_cubes_initial_passes,
+            0,
+            100,
+            "0..=100",
+        )?;
         check_u32("adaptive_passes", self.adaptive_passes, 0, 200, "0..=200")?;
         check_u32(
             "lattice_adaptive_passes",

@@ -397,7 +397,8 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 
 /// The initial passes (paper section 2.2) on `positions`: their fit
 /// statistics and the input's mean curvature variation, from the first
-/// pass's fits. On a marching-cubes mesh of a mask the staircase
+/// pass's fits. On a marching-cubes mesh of a mask
+/// ([`Params::marching_cubes_initial_passes`] passes) the staircase
 /// relaxation ([`relax_staircase`]) runs between the first pass, whose
 /// fits also give the input's curvature, and the second, and gives back the
 /// local shrinkage of its umbrella steps ([`compensate_shrinkage`]); a mesh
@@ -445,7 +446,11 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
         let variation = mean_curvature_variation(run.topo, &input_curvature);
         return Ok((FitStats::default(), variation));
     }
-    let passes = params.initial_passes;
+    let passes = if run.marching_cubes {
+        params.marching_cubes_initial_passes
+    } else {
+        params.initial_passes
+    };
     let some_passes = |positions: &mut [DVec3], n: u32, done: u32, curvature: bool| {
         let plan = InitialPlan {
             movable: run.movable,
