@@ -30,7 +30,9 @@
 //! The sizes are `max_displacement` times the vertex's mean input edge
 //! length (box and ball) or times the voxel spacing (slab): 0.5 gives the
 //! dual voxel on a lattice, so no vertex of a voxel mesh moves more than
-//! `sqrt(3) / 2` voxel, and the lattice edge on a marching-cubes mesh.
+//! `sqrt(3) / 2` voxel, and the lattice edge on a marching-cubes mesh, whose
+//! ball is also at most `max_displacement` spacings of the vertex's edge
+//! (the quality fixes get twice the ball: one voxel).
 
 use super::project::mean_edge_at;
 use crate::fit::normals::vertex_normals_f32_by_faces;
@@ -157,7 +159,7 @@ impl FidelityBound {
     pub fn new(mesh: &Mesh, topo: &Topology, max_displacement: f64) -> Self {
         let p = mesh.positions();
         let frame = lattice_frame(topo, p);
-        let size = (0..topo.num_vertices())
+        let mut size = (0..topo.num_vertices())
             .into_par_iter()
             .with_min_len(4096)
             .map(|v| {
@@ -172,14 +174,17 @@ impl FidelityBound {
                 });
                 if on_lattice { s } else { -s }
             })
-            .collect::<Vec<f32>>()
-            .into();
+            .collect::<Vec<f32>>();
         let slabs = if frame.is_none() {
-            marching_cubes_slabs(mesh, topo, max_displacement)
+            marching_cubes_slabs(mesh, topo, max_displacement, &mut size)
         } else {
             None
         };
-        FidelityBound { frame, size, slabs }
+        FidelityBound {
+            frame,
+            size: size.into(),
+            slabs,
+        }
     }
 
     /// The ball of `factor` times this bound's size at every vertex: the
@@ -324,14 +329,24 @@ impl FidelityBound {
 
 /// The slabs of a marching-cubes mesh of a mask (see the module docs):
 /// half-width `max_displacement` voxel spacings times the share of the
-/// normal along the vertex's edge; `None` when the mesh is not one.
+/// normal along the vertex's edge; `None` when the mesh is not one. Each
+/// lattice vertex's ball in `size` (stored negated) is also held to
+/// `max_displacement` spacings of its edge, as a voxel mesh's box is: where
+/// the mesh's edges are longer than a voxel, the quality fixes' room (twice
+/// the ball) would take a vertex more than a voxel from its edge otherwise.
 fn marching_cubes_slabs(
     mesh: &Mesh,
     topo: &Topology,
     max_displacement: f64,
+    size: &mut [f32],
 ) -> Option<Arc<[Option<Slab>]>> {
     let p = mesh.positions();
     let edges = marching_cubes_edges(p)?;
+    for (s, edge) in size.iter_mut().zip(&edges) {
+        if let Some(edge) = edge {
+            *s = -s.abs().min((max_displacement * edge.spacing) as f32);
+        }
+    }
     let mut normals = vertex_normals_f32_by_faces(mesh, topo, p);
     for _ in 0..SLAB_NORMAL_SMOOTHING {
         normals = (0..normals.len())
@@ -418,6 +433,39 @@ mod tests {
         assert!(across > 0.0 && across <= w * (1.0 + 1e-6));
         assert!(bound.allows(v, input[v], p[v]));
         assert!(!bound.allows(v, input[v], input[v] + 1.5 * w * n));
+    }
+
+    #[test]
+    fn no_marching_cubes_vertex_may_leave_its_voxel_even_with_the_fixes_room() {
+        // Voxels three times as deep as wide: the edges at a vertex on an x
+        // or y edge are longer than that edge's spacing, and twice the
+        // ball of half their mean would reach past one voxel along it.
+        let (_, mc) = shapes::mc_sphere(6.0);
+        let spacing = DVec3::new(1.0, 1.0, 3.0);
+        let mut mesh = mc.clone();
+        for p in mesh.positions_mut() {
+            *p *= spacing;
+        }
+        let topo = Topology::build(&mesh);
+        let bound = FidelityBound::new(&mesh, &topo, 0.5);
+        let room = bound.widened(2.0);
+        let input = mesh.positions();
+        let edges = marching_cubes_edges(input).expect("a marching-cubes mesh");
+        let mut long = 0;
+        for (v, edge) in edges.iter().enumerate() {
+            let edge = edge.expect("every vertex is a midpoint");
+            let mut along = DVec3::ZERO;
+            along[usize::from(edge.axis)] = 1.0;
+            let mean = mean_edge_at(&topo, input, v);
+            long += usize::from(mean > edge.spacing);
+            let past = input[v] + 1.01 * edge.spacing * along;
+            assert!(!room.allows(v, input[v], past), "vertex {v}");
+            // Within the room: twice the ball of half the mean edge, or
+            // one voxel where that is less.
+            let within = 0.99 * mean.min(edge.spacing);
+            assert!(room.allows(v, input[v], input[v] + within * along));
+        }
+        assert!(long > 0, "the fixture has edges longer than a voxel");
     }
 
     #[test]
