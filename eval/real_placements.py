@@ -89,7 +89,10 @@ def voxel_quads(mask):
     voxel coordinates (a voxel's centre at its index)."""
     m = np.pad(mask, 1)
     dims = np.asarray(m.shape)
-    corner_id = lambda c: (c[:, 0] * (dims[1] + 1) + c[:, 1]) * (dims[2] + 1) + c[:, 2]
+
+    def corner_id(c):
+        return (c[:, 0] * (dims[1] + 1) + c[:, 1]) * (dims[2] + 1) + c[:, 2]
+
     quads = []
     for a in range(3):
         b, c = (a + 1) % 3, (a + 2) % 3

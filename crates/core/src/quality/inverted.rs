@@ -58,14 +58,6 @@ pub struct InvertedStats {
     pub remaining: u64,
 }
 
-fn inverted_faces(mesh: &Mesh, positions: &[DVec3], input: &[DVec3]) -> Vec<u32> {
-    (0..mesh.num_faces() as u32)
-        .into_par_iter()
-        .with_min_len(4096)
-        .filter(|&f| is_inverted(mesh.face(f as usize), positions, input))
-        .collect()
-}
-
 /// Moves folds back towards `input` (one position per vertex, like
 /// `positions`, which are moved in place); at most `max_sweeps` sweeps.
 pub fn fix_inverted_faces(
@@ -76,56 +68,119 @@ pub fn fix_inverted_faces(
     bound: Option<&FidelityBound>,
     max_sweeps: u32,
 ) -> InvertedStats {
-    let mut inverted = inverted_faces(mesh, positions, input);
-    let mut stats = InvertedStats {
-        found: inverted.len() as u64,
-        ..InvertedStats::default()
+    let rule = RetreatRule {
+        bad: &|face, p| is_inverted(face, p, input),
+        cos_goal: 1.0,
+        accept: &|v| !v.new_defect && v.inverted.1 < v.inverted.0 && v.twisted.1 <= v.twisted.0,
+        fallback: None,
+    };
+    let s = retreat_sweeps(mesh, topo, positions, input, bound, max_sweeps, &rule);
+    InvertedStats {
+        found: s.found,
+        retreats: s.retreats,
+        vertices_moved: s.vertices_moved,
+        rejected: s.rejected,
+        sweeps: s.sweeps,
+        remaining: s.remaining,
+    }
+}
+
+/// What a fix that moves clusters of faces back toward the input repairs
+/// and which move it keeps: the fold fix here, the sliver fix in
+/// [`super::sliver`].
+pub(super) struct RetreatRule<'r> {
+    /// Whether a face, at the given positions, needs the repair.
+    pub bad: &'r (dyn Fn(&[u32], &[DVec3]) -> bool + Sync),
+    /// The angle goal the tried moves are judged against (cosine).
+    pub cos_goal: f64,
+    /// Whether a tried move repairs the cluster.
+    pub accept: &'r dyn Fn(&Verdict) -> bool,
+    /// What is kept when no widening of the cluster gives an accepted
+    /// move, tried on the widest cluster; `None`: nothing.
+    pub fallback: Option<&'r dyn Fn(&Verdict) -> bool>,
+}
+
+/// What [`retreat_sweeps`] did; each fix reports it under its own name.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Sweeps {
+    pub found: u64,
+    pub retreats: u64,
+    pub vertices_moved: u64,
+    pub rejected: u64,
+    pub sweeps: u64,
+    pub remaining: u64,
+}
+
+fn faces_where(mesh: &Mesh, positions: &[DVec3], rule: &RetreatRule) -> Vec<u32> {
+    (0..mesh.num_faces() as u32)
+        .into_par_iter()
+        .with_min_len(4096)
+        .filter(|&f| (rule.bad)(mesh.face(f as usize), positions))
+        .collect()
+}
+
+/// Moves the clusters of `rule.bad` faces back towards `input` (see the
+/// module docs), at most `max_sweeps` sweeps.
+pub(super) fn retreat_sweeps(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &mut [DVec3],
+    input: &[DVec3],
+    bound: Option<&FidelityBound>,
+    max_sweeps: u32,
+    rule: &RetreatRule,
+) -> Sweeps {
+    let mut left = faces_where(mesh, positions, rule);
+    let mut stats = Sweeps {
+        found: left.len() as u64,
+        ..Sweeps::default()
     };
     let mut tester = MoveTester::bounded(bound);
     let mut cluster = Cluster::default();
-    while !inverted.is_empty() && stats.sweeps < max_sweeps as u64 {
+    let bad = |f: u32, p: &[DVec3]| (rule.bad)(mesh.face(f as usize), p);
+    while !left.is_empty() && stats.sweeps < max_sweeps as u64 {
         stats.sweeps += 1;
         let mut changed = false;
-        for &f in &inverted {
-            if !is_inverted(mesh.face(f as usize), positions, input) {
-                continue; // opened by an earlier move of this sweep
+        for &f in &left {
+            if !bad(f, positions) {
+                continue; // repaired by an earlier move of this sweep
             }
-            let bad = |g: u32| is_inverted(mesh.face(g as usize), positions, input);
-            cluster.gather(mesh, topo, f, positions, input, bad);
+            cluster.gather(mesh, topo, f, positions, input, |g| bad(g, positions));
             if cluster.vertices.is_empty() || cluster.faces.len() > MAX_CLUSTER_FACES {
                 stats.rejected += 1;
                 continue;
             }
-            let mut opened = false;
+            let mut moved = None;
             for widening in 0..=MAX_WIDENINGS {
                 if widening > 0 && !cluster.widen(topo, positions, input) {
                     break;
                 }
-                let opens = |v: &Verdict| {
-                    !v.new_defect && v.inverted.1 < v.inverted.0 && v.twisted.1 <= v.twisted.0
-                };
-                if let Some(moved) =
-                    cluster.retreat(mesh, topo, positions, input, &mut tester, 1.0, opens)
-                {
-                    stats.retreats += 1;
-                    stats.vertices_moved += moved as u64;
-                    opened = true;
+                let (goal, accept) = (rule.cos_goal, rule.accept);
+                moved = cluster.retreat(mesh, topo, positions, input, &mut tester, goal, accept);
+                if moved.is_some() {
                     break;
                 }
             }
-            if opened {
-                changed = true;
-            } else {
-                stats.rejected += 1;
+            if let (None, Some(fallback)) = (moved, rule.fallback) {
+                let goal = rule.cos_goal;
+                moved = cluster.retreat(mesh, topo, positions, input, &mut tester, goal, fallback);
+            }
+            match moved {
+                Some(n) => {
+                    stats.retreats += 1;
+                    stats.vertices_moved += n as u64;
+                    changed = true;
+                }
+                None => stats.rejected += 1,
             }
         }
         let p: &[DVec3] = positions;
-        inverted.retain(|&f| is_inverted(mesh.face(f as usize), p, input));
+        left.retain(|&f| bad(f, p));
         if !changed {
             break;
         }
     }
-    stats.remaining = inverted_faces(mesh, positions, input).len() as u64;
+    stats.remaining = faces_where(mesh, positions, rule).len() as u64;
     stats
 }
 
@@ -139,8 +194,8 @@ pub(super) fn movable(topo: &Topology, v: usize, positions: &[DVec3], input: &[D
 /// from the input), with scratch.
 #[derive(Debug, Default)]
 pub(super) struct Cluster {
-    pub(super) vertices: Vec<usize>,
-    pub(super) faces: Vec<u32>,
+    vertices: Vec<usize>,
+    faces: Vec<u32>,
     moves: Vec<(usize, DVec3)>,
 }
 
@@ -148,7 +203,7 @@ impl Cluster {
     /// The faces for which `bad` holds reachable from face `f` through
     /// shared vertices (at most [`MAX_CLUSTER_FACES`] and one more), and
     /// their vertices that can move back.
-    pub(super) fn gather(
+    fn gather(
         &mut self,
         mesh: &Mesh,
         topo: &Topology,
@@ -181,9 +236,16 @@ impl Cluster {
         }
     }
 
+    /// The cluster of just `vertices` (no faces gathered).
+    pub(super) fn set(&mut self, vertices: &[usize]) {
+        self.faces.clear();
+        self.vertices.clear();
+        self.vertices.extend_from_slice(vertices);
+    }
+
     /// Adds the neighbours of the cluster's vertices that can move back;
     /// false when there is none to add.
-    pub(super) fn widen(&mut self, topo: &Topology, positions: &[DVec3], input: &[DVec3]) -> bool {
+    fn widen(&mut self, topo: &Topology, positions: &[DVec3], input: &[DVec3]) -> bool {
         let before = self.vertices.len();
         for i in 0..before {
             for &w in topo.neighbors(self.vertices[i]) {
@@ -208,7 +270,7 @@ impl Cluster {
         input: &[DVec3],
         tester: &mut MoveTester,
         cos_goal: f64,
-        accept: impl Fn(&Verdict) -> bool,
+        accept: &dyn Fn(&Verdict) -> bool,
     ) -> Option<usize> {
         tester.begin(mesh, topo, &self.vertices, positions, input, cos_goal);
         for t in RETREATS {

@@ -12,21 +12,21 @@
 //! sharing a vertex) goes back together by the smallest of the
 //! [`RETREATS`](super::inverted::RETREATS) that lifts every angle around it
 //! to the floor and makes nothing worse (see `MoveTester`), taking in one
-//! ring more at most
-//! [`MAX_WIDENINGS`] times; when none does, by the smallest that widens the
-//! cluster's smallest angle. Smoothing is given up only where a sliver was.
+//! ring more at most [`MAX_WIDENINGS`](super::inverted::MAX_WIDENINGS)
+//! times; when none does, by the smallest that widens the cluster's
+//! smallest angle. Smoothing is given up only where a sliver was
+//! ([`retreat_sweeps`], the fold fix's mechanism).
 //!
 //! Order: sequential, slivers in ascending face order (deterministic); a
 //! sweep rescans the slivers left; the fix stops after a sweep that
 //! changes nothing, when none is left, or after `max_sweeps`. Only
 //! interior vertices move.
 
-use super::inverted::{Cluster, MAX_CLUSTER_FACES, MAX_WIDENINGS};
-use super::local::{MoveTester, Verdict, has_repeated_corner, max_split_cos};
+use super::inverted::{RetreatRule, retreat_sweeps};
+use super::local::{Verdict, has_repeated_corner, max_split_cos};
 use crate::mesh::{Mesh, Topology};
 use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// What the sliver fix did.
@@ -58,17 +58,10 @@ fn is_sliver(face: &[u32], positions: &[DVec3], input: &[DVec3], cos_floor: f64)
         && max_split_cos(face, input) <= cos_floor
 }
 
-fn slivers(mesh: &Mesh, positions: &[DVec3], input: &[DVec3], cos_floor: f64) -> Vec<u32> {
-    (0..mesh.num_faces() as u32)
-        .into_par_iter()
-        .with_min_len(4096)
-        .filter(|&f| is_sliver(mesh.face(f as usize), positions, input, cos_floor))
-        .collect()
-}
-
 /// Moves the slivers' vertices (faces with a split-triangle angle below
-/// `floor_deg` that the input did not have) back towards `input` (one position per vertex, like
-/// `positions`, which are moved in place); at most `max_sweeps` sweeps.
+/// `floor_deg` that the input did not have) back towards `input` (one
+/// position per vertex, like `positions`, which are moved in place); at
+/// most `max_sweeps` sweeps.
 pub fn fix_slivers(
     mesh: &Mesh,
     topo: &Topology,
@@ -79,61 +72,23 @@ pub fn fix_slivers(
     max_sweeps: u32,
 ) -> SliverStats {
     let cos_floor = floor_deg.to_radians().cos();
-    let mut left = slivers(mesh, positions, input, cos_floor);
-    let mut stats = SliverStats {
-        found: left.len() as u64,
-        ..SliverStats::default()
-    };
-    let mut tester = MoveTester::bounded(bound);
-    let mut cluster = Cluster::default();
     let clean =
         |v: &Verdict| !v.new_defect && v.inverted.1 <= v.inverted.0 && v.twisted.1 <= v.twisted.0;
-    while !left.is_empty() && stats.sweeps < max_sweeps as u64 {
-        stats.sweeps += 1;
-        let mut changed = false;
-        for &f in &left {
-            if !is_sliver(mesh.face(f as usize), positions, input, cos_floor) {
-                continue; // opened by an earlier move of this sweep
-            }
-            let bad = |g: u32| is_sliver(mesh.face(g as usize), positions, input, cos_floor);
-            cluster.gather(mesh, topo, f, positions, input, bad);
-            if cluster.vertices.is_empty() || cluster.faces.len() > MAX_CLUSTER_FACES {
-                stats.rejected += 1;
-                continue;
-            }
-            let lifts = |v: &Verdict| clean(v) && v.max_cos.1 <= cos_floor;
-            let widens = |v: &Verdict| clean(v) && v.max_cos.1 < v.max_cos.0;
-            let mut moved = None;
-            for widening in 0..=MAX_WIDENINGS {
-                if widening > 0 && !cluster.widen(topo, positions, input) {
-                    break;
-                }
-                moved =
-                    cluster.retreat(mesh, topo, positions, input, &mut tester, cos_floor, lifts);
-                if moved.is_some() {
-                    break;
-                }
-            }
-            let moved = moved.or_else(|| {
-                cluster.retreat(mesh, topo, positions, input, &mut tester, cos_floor, widens)
-            });
-            match moved {
-                Some(n) => {
-                    stats.retreats += 1;
-                    stats.vertices_moved += n as u64;
-                    changed = true;
-                }
-                None => stats.rejected += 1,
-            }
-        }
-        let p: &[DVec3] = positions;
-        left.retain(|&f| is_sliver(mesh.face(f as usize), p, input, cos_floor));
-        if !changed {
-            break;
-        }
+    let rule = RetreatRule {
+        bad: &|face, p| is_sliver(face, p, input, cos_floor),
+        cos_goal: cos_floor,
+        accept: &|v| clean(v) && v.max_cos.1 <= cos_floor,
+        fallback: Some(&|v| clean(v) && v.max_cos.1 < v.max_cos.0),
+    };
+    let s = retreat_sweeps(mesh, topo, positions, input, bound, max_sweeps, &rule);
+    SliverStats {
+        found: s.found,
+        retreats: s.retreats,
+        vertices_moved: s.vertices_moved,
+        rejected: s.rejected,
+        sweeps: s.sweeps,
+        remaining: s.remaining,
     }
-    stats.remaining = slivers(mesh, positions, input, cos_floor).len() as u64;
-    stats
 }
 
 #[cfg(test)]

@@ -6,7 +6,11 @@
 //! edge's two end points untwists both. A twisted quad with no twisted
 //! neighbour, or whose swap is refused, is handled by relocating its
 //! corners with the angle-based candidates of
-//! [`sharp_angle`](super::sharp_angle).
+//! [`sharp_angle`](super::sharp_angle). When none of those untwists it (two
+//! opposite corners pinned, as where two sheets of a voxel mask touch at a
+//! corner), its corners that can move go back toward their input positions,
+//! where the quad was not twisted, by the smallest of the fold fix's
+//! [`RETREATS`](super::inverted::RETREATS) that untwists it.
 //!
 //! Every move is tried and kept only when it makes nothing worse (see
 //! `MoveTester`): no face becomes inverted relative to the input, no quad
@@ -20,7 +24,7 @@
 //! twisted; the fix stops after a sweep that changes nothing, when none is
 //! left, or after `max_sweeps`. Only interior vertices move.
 
-use super::inverted::RETREATS;
+use super::inverted::{Cluster, movable};
 use super::local::{MoveTester, Verdict, is_twisted};
 use super::sharp_angle::{Relocator, Visit};
 use crate::mesh::{Mesh, Topology, VertexKind};
@@ -82,6 +86,7 @@ pub fn fix_twisted_quads(
     };
     let mut tester = MoveTester::bounded(bound);
     let mut relocator = Relocator::new(min_normal_cos, bound);
+    let mut cluster = Cluster::default();
     while !twisted.is_empty() && stats.sweeps < max_sweeps as u64 {
         stats.sweeps += 1;
         let mut changed = false;
@@ -118,7 +123,9 @@ pub fn fix_twisted_quads(
                 }
                 stats.rejected += 1;
             }
-            if !relocated && retreat_corners(mesh, topo, f, positions, input, &mut tester) {
+            if !relocated
+                && retreat_corners(mesh, topo, f, positions, input, &mut tester, &mut cluster)
+            {
                 stats.retreats += 1;
                 changed = true;
             }
@@ -133,10 +140,11 @@ pub fn fix_twisted_quads(
     stats
 }
 
-/// Moves the interior corners of quad `f` toward their input positions,
-/// one corner alone (in corner order) and then all of them together, each
-/// by the smallest of [`RETREATS`] that untwists the quad and adds no
-/// defect; keeps the first such move.
+/// Moves the corners of quad `f` that can move back (interior, away from
+/// the input) toward their input positions, one corner alone (in corner
+/// order) and then all of them together, each by the smallest of
+/// [`RETREATS`](super::inverted::RETREATS) that untwists the quad and adds no defect; keeps the first
+/// such move.
 fn retreat_corners(
     mesh: &Mesh,
     topo: &Topology,
@@ -144,14 +152,13 @@ fn retreat_corners(
     positions: &mut [DVec3],
     input: &[DVec3],
     tester: &mut MoveTester,
+    cluster: &mut Cluster,
 ) -> bool {
-    let face = mesh.face(f as usize);
     let mut corners = [0usize; 4];
     let mut n = 0;
-    for &c in &face[..4] {
-        let v = c as usize;
-        if topo.kind(v) == VertexKind::Interior && positions[v] != input[v] {
-            corners[n] = v;
+    for &c in &mesh.face(f as usize)[..4] {
+        if movable(topo, c as usize, positions, input) {
+            corners[n] = c as usize;
             n += 1;
         }
     }
@@ -159,19 +166,12 @@ fn retreat_corners(
     let singles = corners.iter().map(std::slice::from_ref);
     let all = (n > 1).then_some(corners);
     for group in singles.chain(all) {
-        tester.begin(mesh, topo, group, positions, input, 1.0);
-        for t in RETREATS {
-            let mut moves = [(0usize, DVec3::ZERO); 4];
-            for (m, &v) in moves.iter_mut().zip(group) {
-                *m = (v, positions[v] + t * (input[v] - positions[v]));
-            }
-            let moves = &moves[..group.len()];
-            if untwists(&tester.judge(mesh, moves, positions)) {
-                for &(v, p) in moves {
-                    positions[v] = p;
-                }
-                return true;
-            }
+        cluster.set(group);
+        if cluster
+            .retreat(mesh, topo, positions, input, tester, 1.0, &untwists)
+            .is_some()
+        {
+            return true;
         }
     }
     false
@@ -286,12 +286,26 @@ mod tests {
             .expect("the fixture twists a quad");
         let twisted = p.clone();
         let mut tester = MoveTester::default();
-        assert!(retreat_corners(&m, &t, f, &mut p, &input, &mut tester));
+        let mut cluster = Cluster::default();
+        assert!(retreat_corners(
+            &m,
+            &t,
+            f,
+            &mut p,
+            &input,
+            &mut tester,
+            &mut cluster
+        ));
         assert!(!is_twisted(m.face(f as usize), &p));
         let moved: Vec<usize> = (0..p.len()).filter(|&w| p[w] != twisted[w]).collect();
         assert_eq!(moved, [v]);
         let back = (p[v] - twisted[v]).length() / (input[v] - twisted[v]).length();
-        assert!(RETREATS.iter().any(|&r| (r - back).abs() < 1e-12), "{back}");
+        assert!(
+            crate::quality::inverted::RETREATS
+                .iter()
+                .any(|&r| (r - back).abs() < 1e-12),
+            "{back}"
+        );
         let after = measure_stage(&m, &t, &p, &input, None, 0.2);
         assert_eq!((after.twisted_quads, after.inverted_faces), (0, 0));
     }

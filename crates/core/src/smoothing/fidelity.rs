@@ -36,7 +36,7 @@
 
 use super::project::mean_edge_at;
 use crate::fit::normals::vertex_normals_f32_by_faces;
-use crate::mesh::lattice::{along_axis, lattice_frame, marching_cubes_edges};
+use crate::mesh::lattice::{LatticeEdge, along_axis, lattice_frame, marching_cubes_edges};
 use crate::mesh::{Mesh, Topology};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -159,7 +159,12 @@ impl FidelityBound {
     pub fn new(mesh: &Mesh, topo: &Topology, max_displacement: f64) -> Self {
         let p = mesh.positions();
         let frame = lattice_frame(topo, p);
-        let mut size = (0..topo.num_vertices())
+        let edges = if frame.is_none() {
+            marching_cubes_edges(p)
+        } else {
+            None
+        };
+        let size = (0..topo.num_vertices())
             .into_par_iter()
             .with_min_len(4096)
             .map(|v| {
@@ -167,24 +172,27 @@ impl FidelityBound {
                 if nb.is_empty() {
                     return 0.0;
                 }
-                let s = (max_displacement * mean_edge_at(topo, p, v)) as f32;
+                let mut s = max_displacement * mean_edge_at(topo, p, v);
                 let on_lattice = frame.is_some_and(|f| {
                     nb.iter()
                         .all(|&j| along_axis(&f, p[j as usize] - p[v]).is_some())
                 });
-                if on_lattice { s } else { -s }
+                if on_lattice {
+                    return s as f32;
+                }
+                // A marching-cubes vertex's ball is at most as large as a
+                // voxel corner's box: where the mesh's edges are longer
+                // than a voxel, the quality fixes' room (twice the ball)
+                // would otherwise take it more than a voxel from its edge.
+                if let Some(Some(edge)) = edges.as_ref().map(|e| e[v]) {
+                    s = s.min(max_displacement * edge.spacing);
+                }
+                -s as f32
             })
-            .collect::<Vec<f32>>();
-        let slabs = if frame.is_none() {
-            marching_cubes_slabs(mesh, topo, max_displacement, &mut size)
-        } else {
-            None
-        };
-        FidelityBound {
-            frame,
-            size: size.into(),
-            slabs,
-        }
+            .collect::<Vec<f32>>()
+            .into();
+        let slabs = edges.map(|edges| marching_cubes_slabs(mesh, topo, max_displacement, &edges));
+        FidelityBound { frame, size, slabs }
     }
 
     /// The ball of `factor` times this bound's size at every vertex: the
@@ -327,26 +335,16 @@ impl FidelityBound {
     }
 }
 
-/// The slabs of a marching-cubes mesh of a mask (see the module docs):
-/// half-width `max_displacement` voxel spacings times the share of the
-/// normal along the vertex's edge; `None` when the mesh is not one. Each
-/// lattice vertex's ball in `size` (stored negated) is also held to
-/// `max_displacement` spacings of its edge, as a voxel mesh's box is: where
-/// the mesh's edges are longer than a voxel, the quality fixes' room (twice
-/// the ball) would take a vertex more than a voxel from its edge otherwise.
+/// The slabs of a marching-cubes mesh of a mask whose vertices sit on
+/// `edges` (see the module docs): half-width `max_displacement` voxel
+/// spacings times the share of the normal along the vertex's edge.
 fn marching_cubes_slabs(
     mesh: &Mesh,
     topo: &Topology,
     max_displacement: f64,
-    size: &mut [f32],
-) -> Option<Arc<[Option<Slab>]>> {
+    edges: &[Option<LatticeEdge>],
+) -> Arc<[Option<Slab>]> {
     let p = mesh.positions();
-    let edges = marching_cubes_edges(p)?;
-    for (s, edge) in size.iter_mut().zip(&edges) {
-        if let Some(edge) = edge {
-            *s = -s.abs().min((max_displacement * edge.spacing) as f32);
-        }
-    }
     let mut normals = vertex_normals_f32_by_faces(mesh, topo, p);
     for _ in 0..SLAB_NORMAL_SMOOTHING {
         normals = (0..normals.len())
@@ -363,23 +361,21 @@ fn marching_cubes_slabs(
     }
     // A vertex without a normal (one without faces, a sheet folded onto
     // itself) gets no slab: the ball alone decides.
-    Some(
-        edges
-            .iter()
-            .zip(&normals)
-            .map(|(edge, &normal)| {
-                let edge = (*edge)?;
-                if normal == Vec3::ZERO {
-                    return None;
-                }
-                let share = f64::from(normal[usize::from(edge.axis)].abs());
-                Some(Slab {
-                    normal,
-                    half_width: (max_displacement * edge.spacing * share) as f32,
-                })
+    edges
+        .iter()
+        .zip(&normals)
+        .map(|(edge, &normal)| {
+            let edge = (*edge)?;
+            if normal == Vec3::ZERO {
+                return None;
+            }
+            let share = f64::from(normal[usize::from(edge.axis)].abs());
+            Some(Slab {
+                normal,
+                half_width: (max_displacement * edge.spacing * share) as f32,
             })
-            .collect(),
-    )
+        })
+        .collect()
 }
 
 #[cfg(test)]
