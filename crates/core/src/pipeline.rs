@@ -700,7 +700,7 @@ pub fn run(
         None => {
             params.method == Method::WangYu
                 && !lattice
-                && is_marching_cubes_lattice(mesh.positions())
+                && is_marching_cubes_lattice(&topo, mesh.positions())
         }
     };
     let volume_parts = (params.method == Method::WangYu

@@ -5,13 +5,14 @@
 //! - A voxel-boundary mesh: every edge at a vertex runs along one of three
 //!   orthogonal axes ([`is_voxel_lattice`], in any orientation).
 //! - A marching-cubes mesh of a binary mask: every vertex is the midpoint
-//!   of an edge between two voxel centres, so along each axis the
-//!   coordinates fall on a grid of half the voxel spacing, and exactly one
-//!   coordinate of each vertex is an odd multiple of it
-//!   ([`is_marching_cubes_lattice`], axis-aligned grids).
+//!   of an edge between two voxel centres, so along each of the grid's axes
+//!   the coordinates fall on a grid of half the voxel spacing, and exactly
+//!   one coordinate of each vertex is an odd multiple of it
+//!   ([`is_marching_cubes_lattice`], in any orientation: an image with an
+//!   oblique affine puts its grid's axes anywhere in world coordinates).
 
 use super::Topology;
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
 /// Two unit vectors are parallel for the lattice test when the cosine of
@@ -105,11 +106,30 @@ const MIDPOINT_SHARE: f64 = 0.99;
 /// anything off the grid by far more.
 const GRID_TOLERANCE: f64 = 1e-3;
 
-/// Whether `positions` is a marching-cubes mesh of a binary mask on an
-/// axis-aligned grid (of any spacing per axis and origin): see the module
-/// docs. `O(n log n)`: one sort per axis.
-pub fn is_marching_cubes_lattice(positions: &[DVec3]) -> bool {
-    marching_cubes_edges(positions).is_some()
+/// The same, for a frame estimated from one vertex's edges before it is
+/// refined over the whole mesh: the rounding of those few coordinates tilts
+/// the frame by up to about 1e-5 radian, which across a mesh a few hundred
+/// voxels wide moves a coordinate by a few hundredths of a half spacing.
+/// A mesh off the grid has a vertex within it on all three axes about one
+/// time in a thousand, far short of [`MIDPOINT_SHARE`].
+const ROUGH_GRID_TOLERANCE: f64 = 0.1;
+
+/// How far from a whole multiple of its axis's smallest component an edge's
+/// component may be, in those multiples, for a candidate frame to be tried
+/// on the whole mesh (see [`edges_fit_frame`]).
+const EDGE_TOLERANCE: f64 = 0.02;
+
+/// How many candidate frames, of those that fit a vertex's edges, are
+/// tried on the whole mesh (each is a sort of the coordinates per axis): a
+/// marching-cubes mesh is found at its first vertex with two equal face
+/// diagonals, and a mesh that is not one rarely gets this far.
+const FRAME_TRIALS: usize = 8;
+
+/// Whether `positions` is a marching-cubes mesh of a binary mask (on a grid
+/// of any orientation, spacing per axis and origin): see the module docs
+/// and [`marching_cubes_grid`].
+pub fn is_marching_cubes_lattice(topo: &Topology, positions: &[DVec3]) -> bool {
+    marching_cubes_grid(topo, positions).is_some()
 }
 
 /// The lattice edge a marching-cubes vertex sits on: the axis it runs
@@ -117,54 +137,131 @@ pub fn is_marching_cubes_lattice(positions: &[DVec3]) -> bool {
 /// voxel centres it joins).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LatticeEdge {
-    /// The axis (0, 1, 2: x, y, z) the edge runs along.
+    /// The axis (0, 1, 2: the grid frame's first, second, third) the edge
+    /// runs along.
     pub axis: u8,
     /// The voxel spacing along that axis.
     pub spacing: f64,
 }
 
-/// Per vertex, the lattice edge it is the midpoint of (`None` for the few
-/// a crop's cut faces put elsewhere), when `positions` is a marching-cubes
-/// mesh of a binary mask ([`is_marching_cubes_lattice`]).
-pub fn marching_cubes_edges(positions: &[DVec3]) -> Option<Vec<Option<LatticeEdge>>> {
-    let n = positions.len();
+/// The grid a marching-cubes mesh of a mask was cut from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MarchingCubesGrid {
+    /// The grid's axes (unit, orthogonal): the standard axes for an image
+    /// written in voxel or axis-aligned coordinates, others for one with an
+    /// oblique affine.
+    pub frame: [DVec3; 3],
+    /// Per vertex, the lattice edge it is the midpoint of (`None` for the
+    /// few a crop's cut faces put elsewhere).
+    pub edges: Vec<Option<LatticeEdge>>,
+}
+
+impl MarchingCubesGrid {
+    /// The direction of `edge`'s axis.
+    pub fn direction(&self, edge: LatticeEdge) -> DVec3 {
+        self.frame[usize::from(edge.axis)]
+    }
+}
+
+/// The grid `positions` samples, when it is a marching-cubes mesh of a
+/// binary mask ([`is_marching_cubes_lattice`]).
+///
+/// The standard axes are tried first. Otherwise the grid's axes are read off
+/// a few vertices' edges: a marching-cubes edge joins the midpoints of two
+/// edges of one cube, so its components along the grid's axes are 0, one
+/// or two half spacings, and two equally long edges from a vertex to the
+/// midpoints of one face's two other edges sum and differ along that face's
+/// axes. A frame that fits a vertex's neighbourhood is refined over the
+/// whole mesh (a rigid fit of the vertices to their nearest grid points)
+/// and must then pass the same test as the standard axes. `O(n log n)`.
+pub fn marching_cubes_grid(topo: &Topology, positions: &[DVec3]) -> Option<MarchingCubesGrid> {
+    let standard = [DVec3::X, DVec3::Y, DVec3::Z];
+    if let Some(edges) = edges_in_frame(positions, &standard, GRID_TOLERANCE) {
+        return Some(MarchingCubesGrid {
+            frame: standard,
+            edges,
+        });
+    }
+    let n = topo.num_vertices().min(positions.len());
     if n < 8 {
         return None;
     }
-    // Per axis: the grid's origin and half spacing, from the smallest gap
-    // between the coordinates' distinct values.
+    let mut tried: Vec<[DVec3; 3]> = vec![standard];
+    let step = (n / FRAME_CANDIDATES).max(1);
+    for v in (0..n).step_by(step).take(FRAME_CANDIDATES) {
+        let local = local_edges(topo, positions, v);
+        for frame in candidate_frames(topo, positions, v) {
+            if tried.len() > FRAME_TRIALS {
+                return None;
+            }
+            if tried.iter().any(|t| same_axes(t, &frame)) || !edges_fit_frame(&local, &frame) {
+                continue;
+            }
+            tried.push(frame);
+            let Some(frame) = refined_frame(positions, &frame) else {
+                continue;
+            };
+            if let Some(edges) = edges_in_frame(positions, &frame, GRID_TOLERANCE) {
+                return Some(MarchingCubesGrid { frame, edges });
+            }
+        }
+    }
+    None
+}
+
+/// Per axis of `frame`: the grid's origin and half spacing, from the
+/// smallest gap between the coordinates' distinct values, refined by a
+/// least-squares fit of the coordinates within a quarter of a half spacing
+/// of it.
+fn axis_grids(positions: &[DVec3], frame: &[DVec3; 3]) -> Option<[(f64, f64); 3]> {
     let mut grid = [(0.0, 0.0); 3];
-    for (axis, g) in grid.iter_mut().enumerate() {
-        let mut xs: Vec<f64> = positions.iter().map(|p| p[axis]).collect();
+    for (axis, g) in frame.iter().zip(grid.iter_mut()) {
+        let mut xs: Vec<f64> = positions.iter().map(|p| p.dot(*axis)).collect();
         xs.sort_unstable_by(f64::total_cmp);
-        let (lo, hi) = (xs[0], xs[n - 1]);
+        let (lo, hi) = (*xs.first()?, *xs.last()?);
         let tiny = GRID_TOLERANCE * (hi - lo);
         let half = xs
             .windows(2)
             .map(|w| w[1] - w[0])
             .filter(|&d| d > tiny)
             .min_by(f64::total_cmp)?;
-        *g = (lo, half);
-    }
-    // Each coordinate's parity on its axis's half grid; a coordinate off
-    // the grid disqualifies its vertex.
-    let parities = |p: &DVec3| -> Option<u8> {
-        let mut bits = 0u8;
-        for (axis, &(lo, half)) in grid.iter().enumerate() {
-            let k = (p[axis] - lo) / half;
-            let r = k.round();
-            if (k - r).abs() > GRID_TOLERANCE {
-                return None;
+        // x = lo + k half, fitted over the k of every coordinate near one.
+        let (mut s, mut sk, mut skk, mut sx, mut skx) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &x in &xs {
+            let k = ((x - lo) / half).round();
+            if ((x - lo) / half - k).abs() <= 0.25 {
+                s += 1.0;
+                sk += k;
+                skk += k * k;
+                sx += x - lo;
+                skx += k * (x - lo);
             }
-            bits |= ((r as i64).rem_euclid(2) as u8) << axis;
         }
-        Some(bits)
-    };
-    let bits: Vec<Option<u8>> = positions
-        .par_iter()
-        .with_min_len(4096)
-        .map(parities)
-        .collect();
+        let det = s * skk - sk * sk;
+        *g = if det > 0.0 {
+            let slope = (s * skx - sk * sx) / det;
+            (lo + (sx - slope * sk) / s, slope)
+        } else {
+            (lo, half)
+        };
+    }
+    Some(grid)
+}
+
+/// Per vertex, the lattice edge it is the midpoint of, when at least
+/// [`MIDPOINT_SHARE`] of `positions` sit, within `tolerance` half
+/// spacings, at midpoints of the edges of a grid with axes `frame`.
+fn edges_in_frame(
+    positions: &[DVec3],
+    frame: &[DVec3; 3],
+    tolerance: f64,
+) -> Option<Vec<Option<LatticeEdge>>> {
+    let n = positions.len();
+    if n < 8 {
+        return None;
+    }
+    let grid = axis_grids(positions, frame)?;
+    let bits = grid_parities(positions, frame, &grid, tolerance);
     // Which parity is the voxel centres' on each axis is not known: try
     // the eight choices; a midpoint has exactly one coordinate off them.
     let flip = (0u8..8).find(|&flip| {
@@ -188,6 +285,197 @@ pub fn marching_cubes_edges(positions: &[DVec3]) -> Option<Vec<Option<LatticeEdg
     )
 }
 
+/// Each vertex's parity on each axis's half grid (bit `a` for axis `a`),
+/// `None` for a vertex off the grid by more than `tolerance` half spacings.
+fn grid_parities(
+    positions: &[DVec3],
+    frame: &[DVec3; 3],
+    grid: &[(f64, f64); 3],
+    tolerance: f64,
+) -> Vec<Option<u8>> {
+    positions
+        .par_iter()
+        .with_min_len(4096)
+        .map(|p| {
+            let mut bits = 0u8;
+            for (axis, &(lo, half)) in grid.iter().enumerate() {
+                let k = (p.dot(frame[axis]) - lo) / half;
+                let r = k.round();
+                if (k - r).abs() > tolerance {
+                    return None;
+                }
+                bits |= ((r as i64).rem_euclid(2) as u8) << axis;
+            }
+            Some(bits)
+        })
+        .collect()
+}
+
+/// The frames vertex `v`'s edges suggest: from each two equally long edges
+/// their sum and difference (two face diagonals of one cube face), and from
+/// each two orthogonal edges the edges themselves (two cube edges).
+fn candidate_frames(topo: &Topology, positions: &[DVec3], v: usize) -> Vec<[DVec3; 3]> {
+    let p = positions[v];
+    let edges: Vec<DVec3> = topo
+        .neighbors(v)
+        .iter()
+        .map(|&j| positions[j as usize] - p)
+        .filter(|d| d.length() > 0.0)
+        .collect();
+    let mut frames = Vec::new();
+    for (i, &a) in edges.iter().enumerate() {
+        for &b in &edges[i + 1..] {
+            let (la, lb) = (a.length(), b.length());
+            let cos = a.dot(b) / (la * lb);
+            if cos.abs() >= PARALLEL_COS {
+                continue;
+            }
+            if (la - lb).abs() <= (1.0 - PARALLEL_COS) * la.max(lb) {
+                frames.extend(frame_of(a + b, a - b));
+            }
+            if cos.abs() <= 1.0 - PARALLEL_COS {
+                frames.extend(frame_of(a, b));
+            }
+        }
+    }
+    frames
+}
+
+/// The orthonormal frame of two orthogonal directions.
+fn frame_of(a: DVec3, b: DVec3) -> Option<[DVec3; 3]> {
+    let a = a.try_normalize()?;
+    let b = b.try_normalize()?;
+    let c = a.cross(b).try_normalize()?;
+    Some([a, b, c])
+}
+
+/// Whether two frames have the same axes, in any order and sense.
+fn same_axes(f: &[DVec3; 3], g: &[DVec3; 3]) -> bool {
+    f.iter()
+        .all(|a| g.iter().any(|b| a.dot(*b).abs() >= PARALLEL_COS))
+}
+
+/// How many vertices around a candidate vertex give the edges a frame is
+/// checked on before it is tried on the whole mesh: enough to meet every
+/// kind of marching-cubes edge, few enough to be free.
+const LOCAL_VERTICES: usize = 32;
+
+/// The edges of the first [`LOCAL_VERTICES`] vertices found breadth first
+/// from `v`.
+fn local_edges(topo: &Topology, positions: &[DVec3], v: usize) -> Vec<DVec3> {
+    let mut seen = vec![v];
+    let mut next = 0;
+    let mut edges = Vec::new();
+    while next < seen.len() && next < LOCAL_VERTICES {
+        let u = seen[next];
+        next += 1;
+        for &j in topo.neighbors(u) {
+            let j = j as usize;
+            edges.push(positions[j] - positions[u]);
+            if !seen.contains(&j) && seen.len() < LOCAL_VERTICES {
+                seen.push(j);
+            }
+        }
+    }
+    edges
+}
+
+/// Whether every edge's components along `frame`'s axes are 0, or one or
+/// two times the smallest nonzero component along that axis (half a
+/// spacing and a spacing), as a marching-cubes mesh's edges are in the
+/// frame of its grid.
+fn edges_fit_frame(edges: &[DVec3], frame: &[DVec3; 3]) -> bool {
+    let scale = edges.iter().map(|d| d.length()).fold(0.0, f64::max);
+    if scale == 0.0 {
+        return false;
+    }
+    frame.iter().all(|axis| {
+        let zero = EDGE_TOLERANCE * scale;
+        let parts = || {
+            edges
+                .iter()
+                .map(|d| d.dot(*axis).abs())
+                .filter(move |&c| c > zero)
+        };
+        let Some(unit) = parts().min_by(f64::total_cmp) else {
+            return true;
+        };
+        parts().all(|c| {
+            let k = c / unit;
+            (k - k.round()).abs() <= EDGE_TOLERANCE && k.round() <= 2.0
+        })
+    })
+}
+
+/// `frame` refined over the whole mesh: the rotation that best carries
+/// each vertex's nearest grid point (within [`ROUGH_GRID_TOLERANCE`]) onto
+/// it, when at least [`MIDPOINT_SHARE`] of the vertices have one.
+fn refined_frame(positions: &[DVec3], frame: &[DVec3; 3]) -> Option<[DVec3; 3]> {
+    let grid = axis_grids(positions, frame)?;
+    let snapped = |p: &DVec3| -> Option<DVec3> {
+        let mut g = DVec3::ZERO;
+        for (axis, &(lo, half)) in grid.iter().enumerate() {
+            let k = (p.dot(frame[axis]) - lo) / half;
+            if (k - k.round()).abs() > ROUGH_GRID_TOLERANCE {
+                return None;
+            }
+            g[axis] = lo + k.round() * half;
+        }
+        Some(g)
+    };
+    let pairs: Vec<(DVec3, DVec3)> = positions
+        .iter()
+        .filter_map(|p| Some((*p, snapped(p)?)))
+        .collect();
+    if (pairs.len() as f64) < MIDPOINT_SHARE * positions.len() as f64 {
+        return None;
+    }
+    let count = pairs.len() as f64;
+    let (sp, sg) = pairs
+        .iter()
+        .fold((DVec3::ZERO, DVec3::ZERO), |(sp, sg), (p, g)| {
+            (sp + *p, sg + *g)
+        });
+    let (mp, mg) = (sp / count, sg / count);
+    // Cross-covariance H = sum (p - mp)(g - mg)^T; the rotation R that
+    // maximises trace(R^T H) is the orthogonal factor of H's polar
+    // decomposition, and R's columns are the refined axes.
+    let cov = pairs.iter().fold(DMat3::ZERO, |h, (p, g)| {
+        let (dp, dg) = (*p - mp, *g - mg);
+        h + DMat3::from_cols(dp * dg.x, dp * dg.y, dp * dg.z)
+    });
+    let r = orthogonal_factor(cov)?;
+    frame_of(r.x_axis, r.y_axis)
+}
+
+/// The orthogonal factor of `m`'s polar decomposition, by Newton's
+/// iteration `X <- (X + X^-T) / 2` (quadratic near the factor).
+fn orthogonal_factor(m: DMat3) -> Option<DMat3> {
+    let mut x = m;
+    for _ in 0..POLAR_ITERATIONS {
+        // Scaled to unit determinant first, so that the step converges
+        // whatever the cross-covariance's magnitude.
+        let det = x.determinant().abs();
+        if !det.is_normal() {
+            return None;
+        }
+        x *= det.cbrt().recip();
+        let next = (x + x.inverse().transpose()) * 0.5;
+        let settled = next.abs_diff_eq(x, 1e-13);
+        x = next;
+        if settled {
+            break;
+        }
+    }
+    let ortho = (x.transpose() * x).abs_diff_eq(DMat3::IDENTITY, 1e-9);
+    ortho.then_some(x)
+}
+
+/// Newton steps of [`orthogonal_factor`] at most: from a cross-covariance
+/// whose columns' lengths differ by the vertices' spread along each axis,
+/// a handful reach machine precision.
+const POLAR_ITERATIONS: usize = 30;
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -201,8 +489,14 @@ mod tests {
         let mc_topo = Topology::build(&mc);
         assert!(is_voxel_lattice(&voxel_topo, voxel.positions()));
         assert!(!is_voxel_lattice(&mc_topo, mc.positions()));
-        assert!(is_marching_cubes_lattice(mc.positions()));
-        assert!(!is_marching_cubes_lattice(voxel.positions()));
+        assert!(is_marching_cubes_lattice(&mc_topo, mc.positions()));
+        assert!(!is_marching_cubes_lattice(&voxel_topo, voxel.positions()));
+    }
+
+    /// `mesh` with every position mapped by `f`, and its topology.
+    fn mapped(mesh: &crate::mesh::Mesh, f: impl Fn(DVec3) -> DVec3) -> (Topology, Vec<DVec3>) {
+        let positions = mesh.positions().iter().map(|&p| f(p)).collect();
+        (Topology::build(mesh), positions)
     }
 
     #[test]
@@ -210,51 +504,65 @@ mod tests {
         let (_, mc) = shapes::mc_sphere(5.0);
         // Anisotropic voxels (0.8 x 0.8 x 1.5 mm) at an odd origin, as an
         // imaging affine would put them, rounded to single precision.
-        let scaled: Vec<DVec3> = mc
-            .positions()
-            .iter()
-            .map(|p| {
-                let q = *p * DVec3::new(0.8, 0.8, 1.5) + DVec3::new(-91.3, 12.7, 40.1);
-                q.as_vec3().as_dvec3()
-            })
-            .collect();
-        assert!(is_marching_cubes_lattice(&scaled));
+        let (topo, scaled) = mapped(&mc, |p| {
+            let q = p * DVec3::new(0.8, 0.8, 1.5) + DVec3::new(-91.3, 12.7, 40.1);
+            q.as_vec3().as_dvec3()
+        });
+        let grid = marching_cubes_grid(&topo, &scaled).expect("a marching-cubes mesh");
+        assert_eq!(grid.frame, [DVec3::X, DVec3::Y, DVec3::Z]);
     }
 
     #[test]
     fn each_marching_cubes_vertex_gets_the_edge_between_an_inside_and_an_outside_centre() {
         use crate::shapes::Shape;
         let (sphere, mc) = shapes::mc_sphere(5.0);
-        // Anisotropic voxels: the spacing follows the axis.
+        // Anisotropic voxels on an oblique grid far from the origin, as an
+        // image with an oblique affine gives them in world coordinates,
+        // rounded to single precision: the spacing and the direction follow
+        // the axis.
         let spacing = DVec3::new(0.8, 0.8, 1.5);
-        let scaled: Vec<DVec3> = mc.positions().iter().map(|p| *p * spacing).collect();
-        let edges = marching_cubes_edges(&scaled).expect("a marching-cubes mesh");
-        assert_eq!(edges.len(), scaled.len());
-        for (p, edge) in mc.positions().iter().zip(&edges) {
+        let rot = glam::DQuat::from_euler(glam::EulerRot::XYZ, 0.3, -0.7, 1.1);
+        let origin = DVec3::new(-91.3, 112.7, 40.1);
+        let (topo, placed) = mapped(&mc, |p| (rot * (p * spacing) + origin).as_vec3().as_dvec3());
+        let grid = marching_cubes_grid(&topo, &placed).expect("a marching-cubes mesh");
+        assert_eq!(grid.edges.len(), placed.len());
+        for (p, edge) in mc.positions().iter().zip(&grid.edges) {
             let edge = edge.expect("every vertex is a midpoint");
-            let axis = usize::from(edge.axis);
-            assert!((edge.spacing - spacing[axis]).abs() < 1e-9);
-            let mut half = DVec3::ZERO;
-            half[axis] = 0.5;
-            assert_ne!(sphere.inside(*p - half), sphere.inside(*p + half));
+            // The frame's axes come in any order and sense.
+            let axis = (0..3)
+                .find(|&a| grid.direction(edge).dot(rot * DVec3::AXES[a]).abs() > 1.0 - 1e-9)
+                .expect("the edge runs along an axis of the grid");
+            assert!((edge.spacing - spacing[axis]).abs() < 1e-5);
+            let along = DVec3::AXES[axis];
+            assert_ne!(
+                sphere.inside(*p - 0.5 * along),
+                sphere.inside(*p + 0.5 * along)
+            );
         }
     }
 
     #[test]
     fn meshes_off_the_grid_are_no_lattice() {
-        let (_, mc) = shapes::mc_sphere(5.0);
-        // A smoothed or interpolated mesh: vertices moved off the midpoints.
-        let moved: Vec<DVec3> = mc
-            .positions()
-            .iter()
-            .enumerate()
-            .map(|(i, p)| *p + DVec3::splat(0.013 * (i % 7) as f64))
-            .collect();
-        assert!(!is_marching_cubes_lattice(&moved));
-        assert!(!is_marching_cubes_lattice(&mc.positions()[..4]));
-        // A rotated grid is not found (axis-aligned grids only).
+        let (sphere, mc) = shapes::mc_sphere(5.0);
+        // A smoothed or interpolated mesh: vertices moved off the midpoints,
+        // on the standard axes and on a rotated grid.
+        let nudge =
+            |p: DVec3| DVec3::splat(0.013 * (p.x * 7.0 + p.y * 3.0).rem_euclid(7.0).floor());
+        let (topo, moved) = mapped(&mc, |p| p + nudge(p));
+        assert!(!is_marching_cubes_lattice(&topo, &moved));
         let rot = glam::DQuat::from_rotation_z(0.3);
-        let rotated: Vec<DVec3> = mc.positions().iter().map(|p| rot * *p).collect();
-        assert!(!is_marching_cubes_lattice(&rotated));
+        let (_, rotated) = mapped(&mc, |p| rot * (p + nudge(p)));
+        assert!(!is_marching_cubes_lattice(&topo, &rotated));
+        // Too few vertices to tell.
+        assert!(!is_marching_cubes_lattice(&topo, &mc.positions()[..4]));
+        // Meshes of no grid: the same triangles with their vertices on the
+        // sphere, a tilted voxel mesh.
+        let (_, on_sphere) = mapped(&mc, |p| {
+            sphere.center + sphere.radius * (p - sphere.center).normalize()
+        });
+        assert!(!is_marching_cubes_lattice(&topo, &on_sphere));
+        let (_, voxel) = shapes::voxel_sphere(5.0);
+        let (voxel_topo, tilted) = mapped(&voxel, |p| rot * p);
+        assert!(!is_marching_cubes_lattice(&voxel_topo, &tilted));
     }
 }

@@ -36,7 +36,7 @@
 
 use super::project::mean_edge_at;
 use crate::fit::normals::vertex_normals_f32_by_faces;
-use crate::mesh::lattice::{LatticeEdge, along_axis, lattice_frame, marching_cubes_edges};
+use crate::mesh::lattice::{MarchingCubesGrid, along_axis, lattice_frame, marching_cubes_grid};
 use crate::mesh::{Mesh, Topology};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -159,8 +159,8 @@ impl FidelityBound {
     pub fn new(mesh: &Mesh, topo: &Topology, max_displacement: f64) -> Self {
         let p = mesh.positions();
         let frame = lattice_frame(topo, p);
-        let edges = if frame.is_none() {
-            marching_cubes_edges(p)
+        let grid = if frame.is_none() {
+            marching_cubes_grid(topo, p)
         } else {
             None
         };
@@ -184,14 +184,14 @@ impl FidelityBound {
                 // voxel corner's box: where the mesh's edges are longer
                 // than a voxel, the quality fixes' room (twice the ball)
                 // would otherwise take it more than a voxel from its edge.
-                if let Some(Some(edge)) = edges.as_ref().map(|e| e[v]) {
+                if let Some(Some(edge)) = grid.as_ref().map(|g| g.edges[v]) {
                     s = s.min(max_displacement * edge.spacing);
                 }
                 -s as f32
             })
             .collect::<Vec<f32>>()
             .into();
-        let slabs = edges.map(|edges| marching_cubes_slabs(mesh, topo, max_displacement, &edges));
+        let slabs = grid.map(|grid| marching_cubes_slabs(mesh, topo, max_displacement, &grid));
         FidelityBound { frame, size, slabs }
     }
 
@@ -336,13 +336,13 @@ impl FidelityBound {
 }
 
 /// The slabs of a marching-cubes mesh of a mask whose vertices sit on
-/// `edges` (see the module docs): half-width `max_displacement` voxel
-/// spacings times the share of the normal along the vertex's edge.
+/// `grid`'s edges (see the module docs): half-width `max_displacement`
+/// voxel spacings times the share of the normal along the vertex's edge.
 fn marching_cubes_slabs(
     mesh: &Mesh,
     topo: &Topology,
     max_displacement: f64,
-    edges: &[Option<LatticeEdge>],
+    grid: &MarchingCubesGrid,
 ) -> Arc<[Option<Slab>]> {
     let p = mesh.positions();
     let mut normals = vertex_normals_f32_by_faces(mesh, topo, p);
@@ -361,7 +361,7 @@ fn marching_cubes_slabs(
     }
     // A vertex without a normal (one without faces, a sheet folded onto
     // itself) gets no slab: the ball alone decides.
-    edges
+    grid.edges
         .iter()
         .zip(&normals)
         .map(|(edge, &normal)| {
@@ -369,7 +369,7 @@ fn marching_cubes_slabs(
             if normal == Vec3::ZERO {
                 return None;
             }
-            let share = f64::from(normal[usize::from(edge.axis)].abs());
+            let share = normal.as_dvec3().dot(grid.direction(edge)).abs();
             Some(Slab {
                 normal,
                 half_width: (max_displacement * edge.spacing * share) as f32,
@@ -446,12 +446,11 @@ mod tests {
         let bound = FidelityBound::new(&mesh, &topo, 0.5);
         let room = bound.widened(2.0);
         let input = mesh.positions();
-        let edges = marching_cubes_edges(input).expect("a marching-cubes mesh");
+        let grid = marching_cubes_grid(&topo, input).expect("a marching-cubes mesh");
         let mut long = 0;
-        for (v, edge) in edges.iter().enumerate() {
+        for (v, edge) in grid.edges.iter().enumerate() {
             let edge = edge.expect("every vertex is a midpoint");
-            let mut along = DVec3::ZERO;
-            along[usize::from(edge.axis)] = 1.0;
+            let along = grid.direction(edge);
             let mean = mean_edge_at(&topo, input, v);
             long += usize::from(mean > edge.spacing);
             let past = input[v] + 1.01 * edge.spacing * along;
