@@ -217,6 +217,17 @@ pub struct Params {
     /// that small moves the surface away from the shape the mask samples.
     /// Default 0; range 0..=200.
     pub lattice_shape_passes: u32,
+    /// Taubin λ/μ step pairs on a voxel lattice after the adaptive passes
+    /// (our addition; `smoothing::taubin::LOWPASS_LAMBDA` and `LOWPASS_MU`),
+    /// within the fidelity bound. The fits and the fairing leave corners
+    /// against the walls of their dual voxels in the grid's own pattern, a
+    /// ripple one or two voxels long that no mask can resolve; a few steps
+    /// of a low-pass filter that barely shrinks remove it and keep every
+    /// longer wave. Chosen from 0, 2, 4 and 8 on the real masks at several
+    /// grid placements and on the analytic families (`docs/tuning.md`):
+    /// more helps the thin tubes and the WM crop, the GM mask's finest
+    /// folds lose past 4. Default 4; range 0..=100.
+    pub lattice_lowpass_steps: u32,
     /// The fidelity bound: how far a vertex may end from its input
     /// position, in its mean input edge lengths. A vertex of a voxel
     /// lattice is held in the box of this half-width along the lattice's
@@ -289,6 +300,7 @@ impl Default for Params {
             shape_ring: 2,
             shape_passes: 4,
             lattice_shape_passes: 0,
+            lattice_lowpass_steps: 4,
             max_displacement: Some(0.5),
             boundary: BoundaryRule::Fixed,
             preserve_volume: true,
@@ -447,6 +459,13 @@ impl Params {
             0,
             200,
             "0..=200",
+        )?;
+        check_u32(
+            "lattice_lowpass_steps",
+            self.lattice_lowpass_steps,
+            0,
+            100,
+            "0..=100",
         )?;
         for (field, v, hi, allowed) in [
             ("tolerance_h", self.tolerance_h, 10.0, "0..=10"),

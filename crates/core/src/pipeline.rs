@@ -24,6 +24,7 @@ use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
 use crate::smoothing::staircase::{compensate_shrinkage, relax_staircase};
+use crate::smoothing::taubin::{LOWPASS_LAMBDA, LOWPASS_MU, taubin_in_place};
 use crate::smoothing::volume::{VolumeParts, restore_volume};
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::{DVec3, Vec3};
@@ -375,6 +376,7 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
             progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64)
         })
     })?;
+    timings.time(Stage::Adaptive, || lowpass_stage(run, &mut positions));
     let (volume_offset, volume_not_restored) = timings.time(Stage::Adaptive, || {
         restore_after_passes(run, &mut positions)
     });
@@ -562,6 +564,26 @@ fn growth_rule(params: &Params, edge_length: f64) -> GrowthRule {
         label_margin: params.label_margin,
         label_disagreement: params.label_disagreement,
     }
+}
+
+/// The closing low-pass on a voxel lattice
+/// ([`Params::lattice_lowpass_steps`] Taubin pairs), each pair brought back
+/// within the fidelity bound; the volume restoration that follows takes
+/// back what little the filter shrinks. Part of the staircase treatment
+/// that replaces the initial passes there: with `staircase_steps` 0 the
+/// lattice gets the paper's passes alone.
+fn lowpass_stage(run: &Run, positions: &mut [DVec3]) {
+    if !run.lattice || run.params.staircase_steps == 0 {
+        return;
+    }
+    taubin_in_place(
+        run.topo,
+        run.movable,
+        positions,
+        run.params.lattice_lowpass_steps,
+        (LOWPASS_LAMBDA, LOWPASS_MU),
+        |p| run.fidelity.apply(p),
+    );
 }
 
 /// Restores each part's enclosed volume after the adaptive passes when

@@ -33,6 +33,38 @@ pub fn taubin_smooth(
     Ok(cur)
 }
 
+/// Step of the voxel lattices' closing low-pass
+/// ([`crate::Params::lattice_lowpass_steps`]): half an umbrella step, so a
+/// pair damps the grid's two-voxel ripple (the umbrella operator's highest
+/// frequencies) at once.
+pub const LOWPASS_LAMBDA: f64 = 0.5;
+
+/// The low-pass's negative step: Taubin's pass band `1/lambda + 1/mu` is
+/// then about 0.11 of the umbrella operator's range, so waves longer than
+/// about ten edges pass unchanged and the surface does not shrink.
+pub const LOWPASS_MU: f64 = -0.53;
+
+/// `iterations` λ/μ step pairs on `positions` in place, each pair followed
+/// by `after_pair` (the fidelity bound's clamp, in the pipeline).
+pub fn taubin_in_place(
+    topo: &Topology,
+    movable: &[bool],
+    positions: &mut [DVec3],
+    iterations: u32,
+    (lambda, mu): (f64, f64),
+    mut after_pair: impl FnMut(&mut [DVec3]),
+) {
+    if iterations == 0 {
+        return;
+    }
+    let mut next = positions.to_vec();
+    for _ in 0..iterations {
+        umbrella_step(topo, movable, lambda, positions, &mut next);
+        umbrella_step(topo, movable, mu, &next, positions);
+        after_pair(positions);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
