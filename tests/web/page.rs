@@ -186,6 +186,14 @@ fn a_voxel_sphere_obj_is_smoothed_shown_and_downloaded() {
             .is_some_and(|h| h.ends_with("/mesh?format=obj")),
         "the download defaults to the input's format"
     );
+    // The report's summary names the grid the mesh was cut from.
+    let summary = browser.eval("document.getElementById('summary').textContent");
+    assert!(
+        summary
+            .as_str()
+            .is_some_and(|t| t.contains("input grid: voxel")),
+        "{summary}"
+    );
     // The colour modes use the result's per-vertex attributes.
     browser.eval("(() => { const s = document.getElementById('colour'); s.value = 'label'; s.dispatchEvent(new Event('change')); return true; })()");
     let legend = browser.eval("document.getElementById('legend').textContent");

@@ -13,7 +13,7 @@ use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
 use crate::quality::{improve, is_defective};
 use crate::report::{CurvatureVariation, QualityReport, StageMeasures};
 use crate::report::{
-    LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
+    InputGrid, LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
 };
 use crate::report::{mean_curvature_variation, measure_stage, mesh_statistics};
 use crate::smoothing::adaptive::{GrowthRule, PassSettings, adaptive_passes, grow_neighbourhoods};
@@ -896,6 +896,13 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
         adaptive_fits: r.adaptive_fits.into(),
         volume_offset: r.volume_offset,
         fidelity_held_back: None,
+        input_grid: if run.lattice {
+            InputGrid::Voxel
+        } else if run.marching_cubes {
+            InputGrid::MarchingCubes
+        } else {
+            InputGrid::None
+        },
     });
     if let Some(change) = r.volume_not_restored {
         report.warnings.push(format!(

@@ -5,6 +5,7 @@
 //! PyMeshLab, Open3D and libigl), the volume is kept, and the quality step
 //! leaves no twisted quad, no inverted face and no angle below 15 degrees.
 
+use meshsmooth_core::report::InputGrid;
 use meshsmooth_core::shapes::{self, Shape};
 use meshsmooth_core::{Mesh, NoProgress, Params, SmoothOutput, run};
 use std::sync::atomic::AtomicBool;
@@ -93,7 +94,10 @@ fn a_marching_cubes_mesh_on_an_oblique_grid_smooths_as_on_the_axes() {
     for p in oblique.positions_mut() {
         *p = (rot * *p + origin).as_vec3().as_dvec3();
     }
-    let back: Vec<_> = smooth(&oblique)
+    let out = smooth(&oblique);
+    let grid = out.report.wang_yu.as_ref().map(|w| w.input_grid);
+    assert_eq!(grid, Some(InputGrid::MarchingCubes));
+    let back: Vec<_> = out
         .positions
         .iter()
         .map(|p| rot.inverse() * (*p - origin))
@@ -103,6 +107,21 @@ fn a_marching_cubes_mesh_on_an_oblique_grid_smooths_as_on_the_axes() {
         (rotated - aligned).abs() <= 0.01 * aligned,
         "oblique grid RMS {rotated:.4} against {aligned:.4} on the axes"
     );
+}
+
+#[test]
+fn the_report_names_the_grid_the_input_was_cut_from() {
+    let grid = |mesh: &Mesh| smooth(mesh).report.wang_yu.map(|w| w.input_grid);
+    let (_, voxel) = shapes::voxel_sphere(6.0);
+    assert_eq!(grid(&voxel), Some(InputGrid::Voxel));
+    let (sphere, mc) = shapes::mc_sphere(6.0);
+    assert_eq!(grid(&mc), Some(InputGrid::MarchingCubes));
+    // The same triangles with their vertices on the sphere: no grid.
+    let mut on_sphere = mc.clone();
+    for p in on_sphere.positions_mut() {
+        *p = sphere.center + sphere.radius * (*p - sphere.center).normalize();
+    }
+    assert_eq!(grid(&on_sphere), Some(InputGrid::None));
 }
 
 #[test]

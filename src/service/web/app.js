@@ -747,7 +747,8 @@ function showReport(job, report) {
   ));
   if (report.wang_yu?.labels) {
     const l = report.wang_yu.labels;
-    out.append(heading('Labels'), table(Object.keys(l), [Object.values(l).map(String)]));
+    const grid = report.wang_yu.input_grid ? ` (input grid: ${report.wang_yu.input_grid})` : '';
+    out.append(heading(`Labels${grid}`), table(Object.keys(l), [Object.values(l).map(String)]));
   }
   if (report.quality_fixes) {
     const q = report.quality_fixes;
@@ -756,6 +757,7 @@ function showReport(job, report) {
       ['short edges', q.short_edges?.found, q.short_edges?.remaining],
       ['sharp angles (faces)', q.sharp_angles?.faces_found, q.sharp_angles?.faces_remaining],
       ['inverted faces', q.inverted?.found, q.inverted?.remaining],
+      ['slivers', q.slivers?.found, q.slivers?.remaining],
     ].map((r) => r.map((x) => fmt(x)))));
   }
   out.append(heading(`Timings (total ${fmt(report.total_ms)} ms)`), table(

@@ -22,7 +22,7 @@ use sha2::{Digest, Sha256};
 /// Version of the report's JSON schema: the major number changes when a
 /// field is removed or changes meaning, the minor number when fields are
 /// added.
-pub const SCHEMA_VERSION: &str = "2.1";
+pub const SCHEMA_VERSION: &str = "2.2";
 
 /// Width of one angle-histogram bin, in degrees.
 pub const ANGLE_BIN_DEG: f64 = 5.0;
@@ -355,6 +355,28 @@ pub struct WangYuSummary {
     /// would have moved them farther from their input position; `null`
     /// when the run had no bound.
     pub fidelity_held_back: Option<u64>,
+    /// The grid the input was recognised as cut from, which decides the
+    /// staircase steps and the fidelity bound's shape.
+    #[serde(default)]
+    pub input_grid: InputGrid,
+}
+
+/// The grid a mesh was recognised as cut from (`mesh::lattice`).
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InputGrid {
+    /// A voxel-boundary mesh (every edge along one of three orthogonal
+    /// axes, in any orientation): relaxed, faired and low-passed, each
+    /// corner held in its dual voxel.
+    Voxel,
+    /// A marching-cubes mesh of a binary mask (every vertex at the midpoint
+    /// of a lattice edge, on a grid of any orientation): relaxed between
+    /// the initial passes, each vertex held in its edge's slab.
+    MarchingCubes,
+    /// Neither: the paper's passes alone, each vertex held in a ball.
+    #[default]
+    None,
 }
 
 /// Histogram of ring sizes: entry `k` counts the vertices with `ring[v] ==
