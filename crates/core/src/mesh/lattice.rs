@@ -125,6 +125,14 @@ const EDGE_TOLERANCE: f64 = 0.02;
 /// diagonals, and a mesh that is not one rarely gets this far.
 const FRAME_TRIALS: usize = 8;
 
+/// The most edges a vertex may have and still be looked at as a
+/// marching-cubes vertex when the grid's axes are searched for: such a
+/// vertex sits on a lattice edge shared by four cubes, each of which joins
+/// it to a few other edge midpoints, far fewer than this. The cap keeps the
+/// search (pairs of edges at a vertex, edges around it) linear in the mesh
+/// whatever its valences.
+const MAX_GRID_VALENCE: usize = 24;
+
 /// Whether `positions` is a marching-cubes mesh of a binary mask (on a grid
 /// of any orientation, spacing per axis and origin): see the module docs
 /// and [`marching_cubes_grid`].
@@ -189,7 +197,9 @@ pub fn marching_cubes_grid(topo: &Topology, positions: &[DVec3]) -> Option<March
     let mut tried: Vec<[DVec3; 3]> = vec![standard];
     let step = (n / FRAME_CANDIDATES).max(1);
     for v in (0..n).step_by(step).take(FRAME_CANDIDATES) {
-        let local = local_edges(topo, positions, v);
+        let Some(local) = local_edges(topo, positions, v) else {
+            continue;
+        };
         for frame in candidate_frames(topo, positions, v) {
             if tried.len() > FRAME_TRIALS {
                 return None;
@@ -315,6 +325,9 @@ fn grid_parities(
 /// their sum and difference (two face diagonals of one cube face), and from
 /// each two orthogonal edges the edges themselves (two cube edges).
 fn candidate_frames(topo: &Topology, positions: &[DVec3], v: usize) -> Vec<[DVec3; 3]> {
+    if topo.neighbors(v).len() > MAX_GRID_VALENCE {
+        return Vec::new();
+    }
     let p = positions[v];
     let edges: Vec<DVec3> = topo
         .neighbors(v)
@@ -361,14 +374,18 @@ fn same_axes(f: &[DVec3; 3], g: &[DVec3; 3]) -> bool {
 const LOCAL_VERTICES: usize = 32;
 
 /// The edges of the first [`LOCAL_VERTICES`] vertices found breadth first
-/// from `v`.
-fn local_edges(topo: &Topology, positions: &[DVec3], v: usize) -> Vec<DVec3> {
+/// from `v`; `None` when one of them has more than [`MAX_GRID_VALENCE`]
+/// edges (no marching-cubes vertex has).
+fn local_edges(topo: &Topology, positions: &[DVec3], v: usize) -> Option<Vec<DVec3>> {
     let mut seen = vec![v];
     let mut next = 0;
     let mut edges = Vec::new();
     while next < seen.len() && next < LOCAL_VERTICES {
         let u = seen[next];
         next += 1;
+        if topo.neighbors(u).len() > MAX_GRID_VALENCE {
+            return None;
+        }
         for &j in topo.neighbors(u) {
             let j = j as usize;
             edges.push(positions[j] - positions[u]);
@@ -377,7 +394,7 @@ fn local_edges(topo: &Topology, positions: &[DVec3], v: usize) -> Vec<DVec3> {
             }
         }
     }
-    edges
+    Some(edges)
 }
 
 /// Whether every edge's components along `frame`'s axes are 0, or one or
@@ -564,5 +581,16 @@ mod tests {
         let (_, voxel) = shapes::voxel_sphere(5.0);
         let (voxel_topo, tilted) = mapped(&voxel, |p| rot * p);
         assert!(!is_marching_cubes_lattice(&voxel_topo, &tilted));
+        // A fan of 900 triangles about one vertex, its rim on half-grid
+        // points: the hub's pairs of edges are not searched.
+        let rim: Vec<DVec3> = (0..900)
+            .map(|i| DVec3::new((i % 30) as f64, (i / 30) as f64, 0.5 * (i % 2) as f64))
+            .collect();
+        let mut fan_positions = vec![DVec3::new(14.5, 14.5, 3.0)];
+        fan_positions.extend(rim);
+        let faces: Vec<[u32; 3]> = (1..900u32).map(|i| [0, i, i + 1]).collect();
+        let fan = crate::mesh::Mesh::from_polygons(fan_positions, &faces).expect("a fan");
+        let fan_topo = Topology::build(&fan);
+        assert!(!is_marching_cubes_lattice(&fan_topo, fan.positions()));
     }
 }
