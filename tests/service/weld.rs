@@ -52,7 +52,10 @@ async fn stl_soups_are_welded_unless_asked_not_to() {
     assert_eq!(job["params"]["weld"], Value::Null);
     assert_eq!(report["reproducibility"]["params"]["weld"], true);
     assert_eq!(job["input"]["vertices"], welded);
-    assert_eq!(report["schema_version"], "2.2");
+    assert_eq!(
+        report["schema_version"],
+        meshsmooth_core::report::SCHEMA_VERSION
+    );
     assert_eq!(report["mesh"]["vertices"], welded);
     assert_eq!(report["mesh"]["file_vertices"], file_vertices);
     assert_eq!(report["mesh"]["closed"], true);
