@@ -3,7 +3,7 @@ folder resampled on seeded shifted and rotated grids, thresholded, meshed as
 voxel quads and as marching cubes, smoothed by meshsmooth and by the peers
 over a sweep of their settings, and measured against the same truth.
 
-    python3 eval/real_placements.py [--data DIR] [--placements N] [--only NAME,...]
+    python3 eval/real_placements.py [--data DIR] [--placements N] [--only NAME,...] [--params FILE.json] [--kinds vox,mc]
 
 A mask is where the trilinearly interpolated map exceeds 127.5 at a voxel
 centre, and the truth is the surface where it equals 127.5 (meshmetrics.Truth),
@@ -162,6 +162,8 @@ def main():
     ap.add_argument("--placements", type=int, default=4)
     ap.add_argument("--only", default="", help="comma-separated map names: " + ",".join(MAPS))
     ap.add_argument("--no-peers", action="store_true", help="meshsmooth alone")
+    ap.add_argument("--params", help="meshsmooth parameter file (the HTTP API's params object), to compare settings")
+    ap.add_argument("--kinds", default="vox,mc", help="meshes to run: vox (voxel quads), mc (marching cubes)")
     ap.add_argument(
         "--no-rotation",
         action="store_true",
@@ -171,7 +173,8 @@ def main():
     args = ap.parse_args()
     import nibabel as nib
 
-    ours = cp.meshsmooth(args.binary)
+    ours = cp.meshsmooth(args.binary, ["--params", args.params] if args.params else [])
+    kinds = args.kinds.split(",")
     sweep = {} if args.no_peers else peers()
     for name, (prob, margin) in MAPS.items():
         if args.only and name not in args.only.split(","):
@@ -190,6 +193,8 @@ def main():
             qv, qf = voxel_quads(mask)
             mv, mf = marching_cubes(mask, mm.signed_volume(qv, mm.triangles(qf)))
             for kind, (v, f) in (("vox", (qv, qf)), ("mc", (mv, mf))):
+                if kind not in kinds:
+                    continue
                 world = to_data(v) @ img.affine[:3, :3].T + img.affine[:3, 3]
                 if args.dump:
                     os.makedirs(args.dump, exist_ok=True)
@@ -212,6 +217,8 @@ def main():
                     flush=True,
                 )
         for kind, r in rows.items():
+            if not r:
+                continue
             r = np.asarray(r)
             print(
                 f"{name} {kind}: meshsmooth median {np.median(r[:, 0]):.4f} worst {r[:, 0].max():.4f} "
