@@ -9,9 +9,13 @@ A mask is where the trilinearly interpolated map exceeds 127.5 at a voxel
 centre, and the truth is the surface where it equals 127.5 (meshmetrics.Truth),
 so every placement is a mask of the same continuous surface, sampled by
 another grid: what a scanner puts wherever the head lies. Placement 0 is the
-map's own grid (its voxel quads are the data folder's mesh); the others take a
+map's own grid (its voxel quads are the data folder's mesh; for `gm_1mm`, the
+grid that splits each of the map's voxels in eight); the others take a
 random sub-voxel offset and a random rotation (`--no-rotation`: the offset
-alone), seeded by the placement's number. The meshes are made here the way the data folder's were: voxel quads
+alone), seeded by the placement's number. `gm_1mm` samples the GM map on grids
+of half its spacing: a mask of the same truth at a 1 mm segmentation's
+resolution (about 450k vertices as voxel quads; with the peers' sweep, minutes
+per placement). The meshes are made here the way the data folder's were: voxel quads
 with every boundary face of the mask (corners shared, non-manifold where
 voxels touch along an edge or at a corner), marching cubes by scikit-image at
 level 0.5 on the mask. The WM crop is measured over the vertices at least 3
@@ -38,10 +42,16 @@ import meshmetrics as mm  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
-# name: (probability map, crop margin in voxels or None)
+# name: (probability map, crop margin in voxels or None, grid spacing in the
+# map's voxels). The GM map at 1 mm samples the 2 mm map on a grid twice as
+# fine: a mask of the same truth at the resolution of a 1 mm segmentation,
+# where the cortex is two or three voxels thick instead of one or two (the
+# trilinear map restricted to a half cell is trilinear, so the truth is the
+# same surface).
 MAPS = {
-    "wm_crop": ("mni152_wm_crop48_1mm_prob.nii.gz", 3),
-    "gm_2mm": ("mni152_gm_2mm_prob.nii.gz", None),
+    "wm_crop": ("mni152_wm_crop48_1mm_prob.nii.gz", 3, 1.0),
+    "gm_2mm": ("mni152_gm_2mm_prob.nii.gz", None, 1.0),
+    "gm_1mm": ("mni152_gm_2mm_prob.nii.gz", None, 0.5),
 }
 LEVEL = 127.5
 
@@ -65,19 +75,20 @@ def placement(seed, rotate=True):
     return (rot if rotate else np.eye(3)), rng.uniform(0.0, 1.0, 3)
 
 
-def resampled_mask(data, rot, offset):
-    """The mask of `data`'s trilinear map on the grid rotated by `rot` and
-    shifted by `offset` (voxels) about the volume's centre, and the map from
-    that grid's voxel coordinates to `data`'s."""
+def resampled_mask(data, rot, offset, spacing=1.0):
+    """The mask of `data`'s trilinear map on the grid rotated by `rot`,
+    shifted by `offset` (voxels) about the volume's centre and of `spacing`
+    (in `data`'s voxels), and the map from that grid's voxel coordinates to
+    `data`'s."""
     from scipy.ndimage import map_coordinates
 
     shape = np.asarray(data.shape, dtype=float)
     centre = (shape - 1) / 2
-    extent = np.ceil(np.abs(rot.T) @ shape).astype(int) + 2
+    extent = np.ceil(np.abs(rot.T) @ shape / spacing).astype(int) + 2
     new_centre = (extent - 1) / 2
 
     def to_data(v):
-        return (v - new_centre) @ rot.T + centre + offset
+        return spacing * (v - new_centre) @ rot.T + centre + offset
 
     grid = np.stack(np.meshgrid(*[np.arange(n) for n in extent], indexing="ij"), -1).reshape(-1, 3)
     values = map_coordinates(data, to_data(grid.astype(float)).T, order=1, cval=0.0)
@@ -176,7 +187,7 @@ def main():
     ours = cp.meshsmooth(args.binary, ["--params", args.params] if args.params else [])
     kinds = args.kinds.split(",")
     sweep = {} if args.no_peers else peers()
-    for name, (prob, margin) in MAPS.items():
+    for name, (prob, margin, spacing) in MAPS.items():
         if args.only and name not in args.only.split(","):
             continue
         path = os.path.join(args.data, prob)
@@ -185,11 +196,11 @@ def main():
         truth = mm.Truth(path, level=LEVEL)
         rows = {"vox": [], "mc": []}
         print(f"\n## {name}: truth RMS in mm (ours, best peer setting, ratio), flipped/twisted/min angle of ours")
-        print("| placement | mesh | vertices | input | meshsmooth | best peer | ratio | setting | ours flipped/twisted/min angle/max move |")
+        print("| placement | mesh | vertices | input | meshsmooth | best peer | ratio | setting | ours flipped/twisted/min angle/max move (voxels of the mesh) |")
         print("|---|---|---|---|---|---|---|---|---|")
         for seed in range(args.placements):
             rot, offset = placement(seed, not args.no_rotation)
-            mask, to_data = resampled_mask(data, rot, offset)
+            mask, to_data = resampled_mask(data, rot, offset, spacing)
             qv, qf = voxel_quads(mask)
             mv, mf = marching_cubes(mask, mm.signed_volume(qv, mm.triangles(qf)))
             for kind, (v, f) in (("vox", (qv, qf)), ("mc", (mv, mf))):
@@ -200,7 +211,7 @@ def main():
                     os.makedirs(args.dump, exist_ok=True)
                     mm.write_obj(os.path.join(args.dump, f"{name}_{seed}_{kind}.obj"), world, f)
                 inp = truth_rms(truth, world, margin)
-                m = mm.measure(world, f, ours(world, f), truth.voxel, truth, margin)
+                m = mm.measure(world, f, ours(world, f), truth.voxel * spacing, truth, margin)
                 best = (float("inf"), "-")
                 for setting, run in sweep.items():
                     try:
