@@ -43,11 +43,9 @@ import meshmetrics as mm  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 
 # name: (probability map, crop margin in voxels or None, grid spacing in the
-# map's voxels). The GM map at 1 mm samples the 2 mm map on a grid twice as
-# fine: a mask of the same truth at the resolution of a 1 mm segmentation,
-# where the cortex is two or three voxels thick instead of one or two (the
-# trilinear map restricted to a half cell is trilinear, so the truth is the
-# same surface).
+# map's voxels). `gm_1mm` has the truth of `gm_2mm` (a trilinear map
+# restricted to a half cell is trilinear) with the cortex two or three voxels
+# thick instead of one or two.
 MAPS = {
     "wm_crop": ("mni152_wm_crop48_1mm_prob.nii.gz", 3, 1.0),
     "gm_2mm": ("mni152_gm_2mm_prob.nii.gz", None, 1.0),
@@ -202,10 +200,11 @@ def main():
             rot, offset = placement(seed, not args.no_rotation)
             mask, to_data = resampled_mask(data, rot, offset, spacing)
             qv, qf = voxel_quads(mask)
-            mv, mf = marching_cubes(mask, mm.signed_volume(qv, mm.triangles(qf)))
-            for kind, (v, f) in (("vox", (qv, qf)), ("mc", (mv, mf))):
+            for kind in ("vox", "mc"):
                 if kind not in kinds:
                     continue
+                # Marching cubes only when asked (the 1 mm grids are large).
+                v, f = (qv, qf) if kind == "vox" else marching_cubes(mask, mm.signed_volume(qv, mm.triangles(qf)))
                 world = to_data(v) @ img.affine[:3, :3].T + img.affine[:3, 3]
                 if args.dump:
                     os.makedirs(args.dump, exist_ok=True)
