@@ -218,11 +218,11 @@ def main():
                     except Exception:  # a peer that refuses a mesh is left out
                         continue
                     best = min(best, (r, setting))
-                ratio = m["truth_rms"] / best[0] if sweep else float("nan")
-                rows[kind].append((m["truth_rms"], best[0] if sweep else float("nan")))
+                rows[kind].append((m["truth_rms"], best[0]))
+                # Without the peers' sweep (--no-peers) there is no bar to show.
+                bar = f"{best[0]:.4f} | {m['truth_rms'] / best[0]:.3f} | {best[1]}" if sweep else "- | - | -"
                 print(
-                    f"| {seed} | {kind} | {len(world)} | {inp:.4f} | {m['truth_rms']:.4f} "
-                    f"| {best[0]:.4f} | {ratio:.3f} | {best[1]} "
+                    f"| {seed} | {kind} | {len(world)} | {inp:.4f} | {m['truth_rms']:.4f} | {bar} "
                     f"| {m['flipped']}/{m['twisted']}/{m['min_angle']:.1f}/{m['max_move']:.2f} |",
                     flush=True,
                 )
@@ -230,12 +230,16 @@ def main():
             if not r:
                 continue
             r = np.asarray(r)
-            print(
+            ours_line = (
                 f"{name} {kind}: meshsmooth median {np.median(r[:, 0]):.4f} worst {r[:, 0].max():.4f} "
-                f"(worst/median {r[:, 0].max() / np.median(r[:, 0]):.2f}); best peer per placement "
-                f"median {np.median(r[:, 1]):.4f} worst {r[:, 1].max():.4f}; "
-                f"ratio median {np.median(r[:, 0] / r[:, 1]):.3f} worst {(r[:, 0] / r[:, 1]).max():.3f}"
+                f"(worst/median {r[:, 0].max() / np.median(r[:, 0]):.2f})"
             )
+            if sweep:
+                ours_line += (
+                    f"; best peer per placement median {np.median(r[:, 1]):.4f} worst {r[:, 1].max():.4f}; "
+                    f"ratio median {np.median(r[:, 0] / r[:, 1]):.3f} worst {(r[:, 0] / r[:, 1]).max():.3f}"
+                )
+            print(ours_line)
 
 
 if __name__ == "__main__":

@@ -4,10 +4,10 @@
 //!
 //! `cargo run --release -p meshsmooth-core --example shape_meshes -- list`
 //! prints the families' short names, in order;
-//! `... -- dump DIR`
+//! `... -- dump DIR [PLACEMENTS]`
 //! writes `DIR/{shape}_{seed}_{vox,mc}.obj` for every family of
-//! [`shapes::placement_families`] and seeds 0 to 7 (voxel quads and
-//! marching cubes of the same mask);
+//! [`shapes::placement_families`] and seeds 0 to 7, or 0 to `PLACEMENTS - 1`
+//! (voxel quads and marching cubes of the same mask);
 //! `... -- rms SHAPE SEED FILE.obj` prints the RMS distance, in voxels, of
 //! the OBJ's vertices (in file order) to that placed shape; `... -- bias
 //! SHAPE SEED FILE.obj` their mean signed distance (positive outside);
@@ -20,6 +20,7 @@ use meshsmooth_core::{Mesh, io};
 use std::path::Path;
 use std::process::ExitCode;
 
+/// The placements of a family the accuracy bars are judged on.
 const PLACEMENTS: u64 = 8;
 
 fn main() -> ExitCode {
@@ -31,12 +32,16 @@ fn main() -> ExitCode {
             }
             Ok(())
         }
-        ["dump", dir] => dump(Path::new(dir)),
+        ["dump", dir] => dump(Path::new(dir), PLACEMENTS),
+        ["dump", dir, count] => match count.parse() {
+            Ok(count) => dump(Path::new(dir), count),
+            Err(_) => Err(format!("bad placement count {count}")),
+        },
         ["rms", shape, seed, file] => distances(shape, seed, Path::new(file), Report::Rms),
         ["bias", shape, seed, file] => distances(shape, seed, Path::new(file), Report::Bias),
         ["signed", shape, seed, file] => distances(shape, seed, Path::new(file), Report::Signed),
         _ => {
-            Err("usage: shape_meshes list | dump DIR | rms|bias|signed SHAPE SEED FILE.obj".into())
+            Err("usage: shape_meshes list | dump DIR [PLACEMENTS] | rms|bias|signed SHAPE SEED FILE.obj".into())
         }
     };
     match result {
@@ -48,10 +53,10 @@ fn main() -> ExitCode {
     }
 }
 
-fn dump(dir: &Path) -> Result<(), String> {
+fn dump(dir: &Path, placements: u64) -> Result<(), String> {
     std::fs::create_dir_all(dir).map_err(|e| e.to_string())?;
     for (short, _, shape) in shapes::placement_families() {
-        for seed in 0..PLACEMENTS {
+        for seed in 0..placements {
             let mask = shapes::voxel_mask(&shapes::placed(&*shape, seed));
             for (kind, mesh) in [
                 ("vox", shapes::voxel_boundary_mesh(&mask)),
