@@ -15,7 +15,9 @@ random sub-voxel offset and a random rotation (`--no-rotation`: the offset
 alone), seeded by the placement's number. `gm_1mm` samples the GM map on grids
 of half its spacing: a mask of the same truth at a 1 mm segmentation's
 resolution (about 450k vertices as voxel quads; with the peers' sweep, minutes
-per placement). The meshes are made here the way the data folder's were: voxel quads
+per placement). `wm_thick` samples the WM crop's map on voxels 2.5 times as
+long along the grid's third axis: a thick-slice acquisition (1 x 1 x 2.5 mm),
+which many clinical segmentations are. The meshes are made here the way the data folder's were: voxel quads
 with every boundary face of the mask (corners shared, non-manifold where
 voxels touch along an edge or at a corner), marching cubes by scikit-image at
 level 0.5 on the mask. The WM crop is measured over the vertices at least 3
@@ -43,13 +45,14 @@ import meshmetrics as mm  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 
 # name: (probability map, crop margin in voxels or None, grid spacing in the
-# map's voxels). `gm_1mm` has the truth of `gm_2mm` (a trilinear map
-# restricted to a half cell is trilinear) with the cortex two or three voxels
-# thick instead of one or two.
+# map's voxels, one per grid axis). `gm_1mm` has the truth of `gm_2mm` (a
+# trilinear map restricted to a half cell is trilinear) with the cortex two or
+# three voxels thick instead of one or two.
 MAPS = {
-    "wm_crop": ("mni152_wm_crop48_1mm_prob.nii.gz", 3, 1.0),
-    "gm_2mm": ("mni152_gm_2mm_prob.nii.gz", None, 1.0),
-    "gm_1mm": ("mni152_gm_2mm_prob.nii.gz", None, 0.5),
+    "wm_crop": ("mni152_wm_crop48_1mm_prob.nii.gz", 3, (1.0, 1.0, 1.0)),
+    "gm_2mm": ("mni152_gm_2mm_prob.nii.gz", None, (1.0, 1.0, 1.0)),
+    "gm_1mm": ("mni152_gm_2mm_prob.nii.gz", None, (0.5, 0.5, 0.5)),
+    "wm_thick": ("mni152_wm_crop48_1mm_prob.nii.gz", 3, (1.0, 1.0, 2.5)),
 }
 LEVEL = 127.5
 
@@ -73,13 +76,14 @@ def placement(seed, rotate=True):
     return (rot if rotate else np.eye(3)), rng.uniform(0.0, 1.0, 3)
 
 
-def resampled_mask(data, rot, offset, spacing=1.0):
+def resampled_mask(data, rot, offset, spacing=(1.0, 1.0, 1.0)):
     """The mask of `data`'s trilinear map on the grid rotated by `rot`,
     shifted by `offset` (voxels) about the volume's centre and of `spacing`
-    (in `data`'s voxels), and the map from that grid's voxel coordinates to
-    `data`'s."""
+    (in `data`'s voxels, per grid axis), and the map from that grid's voxel
+    coordinates to `data`'s."""
     from scipy.ndimage import map_coordinates
 
+    spacing = np.asarray(spacing, dtype=float)
     shape = np.asarray(data.shape, dtype=float)
     centre = (shape - 1) / 2
     extent = np.ceil(np.abs(rot.T) @ shape / spacing).astype(int) + 2
@@ -139,6 +143,15 @@ def marching_cubes(mask, outward_like):
     if np.sign(mm.signed_volume(v, f)) != np.sign(outward_like):
         f = f[:, ::-1]
     return v, [list(t) for t in f]
+
+
+def grid_move(world_in, world_out, affine, rot, spacing):
+    """The largest move from `world_in` to `world_out` in the voxels of the
+    grid the mesh was cut from (rotated by `rot`, of `spacing` map voxels
+    per axis): a thick slice's voxel is one voxel long across it too."""
+    to_map = np.linalg.inv(affine[:3, :3])
+    moves = ((world_out - world_in) @ to_map.T) @ rot / np.asarray(spacing, dtype=float)
+    return float(np.linalg.norm(moves, axis=1).max())
 
 
 def peers():
@@ -210,7 +223,9 @@ def main():
                     os.makedirs(args.dump, exist_ok=True)
                     mm.write_obj(os.path.join(args.dump, f"{name}_{seed}_{kind}.obj"), world, f)
                 inp = truth_rms(truth, world, margin)
-                m = mm.measure(world, f, ours(world, f), truth.voxel * spacing, truth, margin)
+                out = ours(world, f)
+                m = mm.measure(world, f, out, None, truth, margin)
+                m["max_move"] = grid_move(world, out, img.affine, rot, spacing)
                 best = (float("inf"), "-")
                 for setting, run in sweep.items():
                     try:

@@ -229,11 +229,12 @@ pub struct Params {
     /// folds lose past 4. Default 4; range 0..=100.
     pub lattice_lowpass_steps: u32,
     /// The fidelity bound: how far a vertex may end from its input
-    /// position, in its mean input edge lengths. A vertex of a voxel
-    /// lattice is held in the box of this half-width along the lattice's
-    /// axes (0.5 is its dual voxel, which the true surface crosses: no
-    /// vertex of a voxel mesh moves more than `sqrt(3)/2` voxel); any other
-    /// vertex within a ball of this radius. A vertex of a marching-cubes
+    /// position. A vertex of a voxel lattice is held in the box of this
+    /// many voxel spacings along each of the lattice's axes (0.5 is its
+    /// dual voxel, which the true surface crosses, as long across thick
+    /// slices as they are: no vertex of a voxel mesh moves more than
+    /// `sqrt(3)/2` voxel); any other vertex within a ball of this many of
+    /// its mean input edge lengths. A vertex of a marching-cubes
     /// mesh of a mask is also held, across the surface, where the surface
     /// crosses its lattice edge within this many voxel spacings of its
     /// midpoint (0.5: between the edge's two voxel centres). Every smoothing

@@ -189,7 +189,9 @@ fn away_from_pinches(topo: &Topology, movable: &[bool]) -> Vec<bool> {
 }
 
 /// How much farther than the fidelity bound the quality fixes may take a
-/// vertex, as a ball of this many times the bound's size: the smoothing
+/// vertex, as a ball of this many times the bound's size (on a voxel
+/// lattice, the ellipsoid of this many times its box's half-widths,
+/// [`FidelityBound::widened`]): the smoothing
 /// passes leave vertices against the walls of their dual voxels (a thin
 /// sheet's two sides against the same wall), and opening the triangles
 /// flattened there needs room beyond the wall. Twice the default half voxel

@@ -163,3 +163,46 @@ fn both_surfaces_of_a_shell_stay_where_they_were() {
         }
     }
 }
+
+#[test]
+fn thick_slices_are_smoothed_within_their_own_voxels() {
+    // A thick-slice image: voxels 2.5 times as long across the slices (z).
+    // The voxel sphere's mesh stretched so is the mask of the sphere
+    // stretched so (an ellipsoid), sampled on that grid. The dual voxels are
+    // as long across the slices: the terraces at the poles may come down to
+    // the surface, and the sides may not leave their thin voxels.
+    let spacing = glam::DVec3::new(1.0, 1.0, 2.5);
+    let (sphere, voxel) = shapes::voxel_sphere(10.0);
+    let mut mesh = voxel.clone();
+    for p in mesh.positions_mut() {
+        *p *= spacing;
+    }
+    let truth = shapes::Ellipsoid {
+        center: sphere.center * spacing,
+        semi_axes: sphere.radius * spacing,
+    };
+    let what = "voxel sphere on 1 x 1 x 2.5 voxels";
+    let out = run(
+        &mesh,
+        &Params::default(),
+        &NoProgress,
+        &AtomicBool::new(false),
+    )
+    .unwrap_or_else(|e| panic!("{what}: {e}"));
+    let fin = out.report.stages.final_stage.as_ref().expect("final stage");
+    assert_eq!(fin.inverted_faces, 0, "{what}: folded faces");
+    assert_eq!(fin.twisted_quads, 0, "{what}: twisted quads");
+    // Within one voxel of where it was, counted in each axis's spacing.
+    let farthest = out
+        .positions
+        .iter()
+        .zip(mesh.positions())
+        .map(|(p, q)| ((*p - *q) / spacing).length())
+        .fold(0.0, f64::max);
+    assert!(farthest <= 1.0 + 1e-9, "{what}: moved {farthest} voxels");
+    let (rms_in, rms_out) = (
+        shapes::rms_distance(&truth, mesh.positions()),
+        shapes::rms_distance(&truth, &out.positions),
+    );
+    assert!(rms_out < 0.15 * rms_in, "{what}: rms {rms_in} -> {rms_out}");
+}

@@ -70,7 +70,8 @@ pub fn fair(
     if plan.iterations == 0 {
         return;
     }
-    let (frame, size) = plan.bound.in_frame();
+    let (frame, spacing, size) = plan.bound.in_frame();
+    let spacing = spacing.as_vec3();
     let to_frame = |d: DVec3| {
         Vec3::new(
             d.dot(frame[0]) as f32,
@@ -94,7 +95,7 @@ pub fn fair(
         .par_iter()
         .zip(anchor_positions)
         .zip(size)
-        .map(|((p, a), &s)| within(to_frame(*p - *a), s))
+        .map(|((p, a), &s)| within(to_frame(*p - *a), s, spacing))
         .collect();
     let mut y = x.clone();
     let mut umbrella = vec![Vec3::ZERO; positions.len()];
@@ -120,7 +121,7 @@ pub fn fair(
                     return;
                 }
                 let bend = umbrella_at(topo, &umbrella, v);
-                let next = within(*y - step * (bend + anchor * *y), size[v]);
+                let next = within(*y - step * (bend + anchor * *y), size[v], spacing);
                 *y = next + momentum * (next - *x);
                 *x = next;
             });
@@ -138,12 +139,13 @@ pub fn fair(
 }
 
 /// Offset `d` (in the lattice's frame) brought within a bound of `size`:
-/// a box of that half-width when positive, a ball of its negation's radius
-/// when negative.
+/// a box of that many `spacing`s along each axis when positive, a ball of
+/// its negation's radius when negative.
 #[inline]
-fn within(d: Vec3, size: f32) -> Vec3 {
+fn within(d: Vec3, size: f32, spacing: Vec3) -> Vec3 {
     if size > 0.0 {
-        d.clamp(Vec3::splat(-size), Vec3::splat(size))
+        let half = size * spacing;
+        d.clamp(-half, half)
     } else {
         d.clamp_length_max(-size)
     }

@@ -8,10 +8,12 @@
 //! - A vertex of a voxel lattice (a voxel-boundary mesh: every edge at the
 //!   vertex runs along one of the lattice's three axes) sits at a corner
 //!   shared by eight voxels, some inside and some outside. The true surface
-//!   separates those voxels' centres, which are the corners of the cube of
-//!   half-width half a voxel around the vertex (its dual voxel): the true
-//!   surface crosses that cube, so the vertex is held inside it, axis by
-//!   axis in the lattice's frame.
+//!   separates those voxels' centres, which are the corners of the box of
+//!   half a voxel around the vertex along each axis (its dual voxel): the
+//!   true surface crosses that box, so the vertex is held inside it, axis by
+//!   axis in the lattice's frame. Each axis has its own spacing: a
+//!   thick-slice image's voxels are longer across the slices, and so are
+//!   their dual voxels.
 //! - A vertex of a marching-cubes mesh of a mask sits at the midpoint of a
 //!   lattice edge between an inside and an outside voxel centre: the true
 //!   surface crosses that edge between the two centres. Moving the surface
@@ -27,12 +29,13 @@
 //! - Any vertex off a voxel lattice (marching cubes, molecular surfaces,
 //!   neurons) is held within a ball around its input position.
 //!
-//! The sizes are `max_displacement` times the vertex's mean input edge
-//! length (box and ball) or times the voxel spacing (slab): 0.5 gives the
-//! dual voxel on a lattice, so no vertex of a voxel mesh moves more than
-//! `sqrt(3) / 2` voxel, and the lattice edge on a marching-cubes mesh, whose
-//! ball is also at most `max_displacement` spacings of the vertex's edge
-//! (the quality fixes get twice the ball: one voxel).
+//! The sizes are `max_displacement` times the lattice's spacing along each
+//! axis (box), times the vertex's mean input edge length (ball) or times the
+//! voxel spacing (slab): 0.5 gives the dual voxel on a lattice, so no vertex
+//! of a voxel mesh moves more than `sqrt(3) / 2` voxel, and the lattice edge
+//! on a marching-cubes mesh, whose ball is also at most `max_displacement`
+//! spacings of the vertex's edge (the quality fixes get twice the ball, or
+//! on a lattice the ellipsoid of twice the box's half-widths: one voxel).
 
 use super::project::mean_edge_at;
 use crate::fit::normals::vertex_normals_f32_by_faces;
@@ -144,9 +147,17 @@ struct Slab {
 pub struct FidelityBound {
     /// The lattice's axes, when the mesh has one.
     frame: Option<[DVec3; 3]>,
-    /// Per vertex: a box half-width (positive, lattice vertices) or a ball
-    /// radius (negative, stored as its negation); 0 holds the vertex fixed.
+    /// The lattice's spacing along each axis of `frame` (ones without a
+    /// lattice).
+    spacing: DVec3,
+    /// Per vertex: on the lattice, the bound's half-widths in spacings along
+    /// each axis (positive); elsewhere a ball radius (negative, stored as
+    /// its negation); 0 holds the vertex fixed.
     size: Arc<[f32]>,
+    /// Whether a lattice vertex is held in the ellipsoid of its half-widths
+    /// (the quality fixes' room, [`FidelityBound::widened`]) rather than in
+    /// their box.
+    lattice_ellipsoid: bool,
     /// Per vertex, on a marching-cubes mesh of a mask: the slab across the
     /// surface that keeps its crossing on the vertex's lattice edge (`None`
     /// for a vertex off the lattice's edges).
@@ -164,22 +175,25 @@ impl FidelityBound {
         } else {
             None
         };
+        let on_lattice = |v: usize| {
+            frame.is_some_and(|f| {
+                topo.neighbors(v)
+                    .iter()
+                    .all(|&j| along_axis(&f, p[j as usize] - p[v]).is_some())
+            })
+        };
+        let spacing = frame.map_or(DVec3::ONE, |f| lattice_spacing(topo, p, &f, on_lattice));
         let size = (0..topo.num_vertices())
             .into_par_iter()
             .with_min_len(4096)
             .map(|v| {
-                let nb = topo.neighbors(v);
-                if nb.is_empty() {
+                if topo.neighbors(v).is_empty() {
                     return 0.0;
                 }
-                let mut s = max_displacement * mean_edge_at(topo, p, v);
-                let on_lattice = frame.is_some_and(|f| {
-                    nb.iter()
-                        .all(|&j| along_axis(&f, p[j as usize] - p[v]).is_some())
-                });
-                if on_lattice {
-                    return s as f32;
+                if on_lattice(v) {
+                    return max_displacement as f32;
                 }
+                let mut s = max_displacement * mean_edge_at(topo, p, v);
                 // A marching-cubes vertex's ball is at most as large as a
                 // voxel corner's box: where the mesh's edges are longer
                 // than a voxel, the quality fixes' room (twice the ball)
@@ -192,20 +206,30 @@ impl FidelityBound {
             .collect::<Vec<f32>>()
             .into();
         let slabs = grid.map(|grid| marching_cubes_slabs(mesh, topo, max_displacement, &grid));
-        FidelityBound { frame, size, slabs }
+        FidelityBound {
+            frame,
+            spacing,
+            size,
+            lattice_ellipsoid: false,
+            slabs,
+        }
     }
 
-    /// The ball of `factor` times this bound's size at every vertex: the
+    /// `factor` times this bound's size at every vertex, as a ball off the
+    /// lattice and as the ellipsoid of the box's half-widths on it: the
     /// room the quality fixes get, which must be able to open a triangle
-    /// that the box's walls flattened.
+    /// that the box's walls flattened (a box of that size would reach
+    /// `sqrt(3)` times as far along its diagonals).
     pub fn widened(&self, factor: f64) -> Self {
         FidelityBound {
-            frame: None,
+            frame: self.frame,
+            spacing: self.spacing,
             slabs: None,
+            lattice_ellipsoid: true,
             size: self
                 .size
                 .iter()
-                .map(|&s| -(s.abs() * factor as f32))
+                .map(|&s| s * factor as f32)
                 .collect::<Vec<f32>>()
                 .into(),
         }
@@ -215,6 +239,8 @@ impl FidelityBound {
     pub fn scaled(&self, factor: f64) -> Self {
         FidelityBound {
             frame: self.frame,
+            spacing: self.spacing,
+            lattice_ellipsoid: self.lattice_ellipsoid,
             slabs: self.slabs.as_ref().map(|slabs| {
                 slabs
                     .iter()
@@ -245,7 +271,12 @@ impl FidelityBound {
         match self.frame {
             Some(f) if s > 0.0 => {
                 let h = f64::from(s) * (1.0 + ALLOW_SLACK);
-                f.iter().all(|a| a.dot(d).abs() <= h)
+                let local = self.in_spacings(&f, d);
+                if self.lattice_ellipsoid {
+                    local.length() <= h
+                } else {
+                    local.abs().max_element() <= h
+                }
             }
             _ => {
                 let in_slab = self.slab(v).is_none_or(|slab| {
@@ -264,14 +295,22 @@ impl FidelityBound {
             .and_then(|s| s.get(v).copied().flatten())
     }
 
-    /// The lattice's axes (the standard axes when the mesh has none) and
-    /// the per-vertex sizes in them: a box half-width along each axis
-    /// (positive), a ball radius (negative, stored as its negation), or 0
-    /// for a vertex held fixed. For solvers that iterate in the lattice's
-    /// frame, where a box is a clamp per coordinate.
-    pub fn in_frame(&self) -> ([DVec3; 3], &[f32]) {
+    /// Offset `d` in the lattice's frame `f`, in its spacings.
+    fn in_spacings(&self, f: &[DVec3; 3], d: DVec3) -> DVec3 {
+        DVec3::new(f[0].dot(d), f[1].dot(d), f[2].dot(d)) / self.spacing
+    }
+
+    /// The lattice's axes (the standard axes when the mesh has none), its
+    /// spacing along them (ones when none) and the per-vertex sizes: a box
+    /// of that many spacings along each axis (positive), a ball radius
+    /// (negative, stored as its negation), or 0 for a vertex held fixed.
+    /// For solvers that iterate in the lattice's frame, where a box is a
+    /// clamp per coordinate; not for the quality fixes' widened bound,
+    /// whose lattice vertices have ellipsoids.
+    pub fn in_frame(&self) -> ([DVec3; 3], DVec3, &[f32]) {
         (
             self.frame.unwrap_or([DVec3::X, DVec3::Y, DVec3::Z]),
+            self.spacing,
             &self.size,
         )
     }
@@ -303,11 +342,16 @@ impl FidelityBound {
                 let d = *p - o;
                 let bounded = if s > 0.0 {
                     let h = f64::from(s);
-                    let local = DVec3::new(d.dot(frame[0]), d.dot(frame[1]), d.dot(frame[2]));
-                    let c = local.clamp(DVec3::splat(-h), DVec3::splat(h));
+                    let local = self.in_spacings(&frame, d);
+                    let c = if self.lattice_ellipsoid {
+                        local.clamp_length_max(h)
+                    } else {
+                        local.clamp(DVec3::splat(-h), DVec3::splat(h))
+                    };
                     if c == local {
                         return;
                     }
+                    let c = c * self.spacing;
                     c.x * frame[0] + c.y * frame[1] + c.z * frame[2]
                 } else {
                     // The slab first, then the ball: the ball only shortens
@@ -333,6 +377,41 @@ impl FidelityBound {
                 held.store(true, Ordering::Relaxed);
             });
     }
+}
+
+/// The lattice's spacing along each axis of `frame`: the median length of
+/// the edges along it between the vertices `on_lattice`. An axis without
+/// such edges (no closed voxel surface lacks any) takes the others'
+/// median. Sequential, so the same for any thread count.
+fn lattice_spacing(
+    topo: &Topology,
+    p: &[DVec3],
+    frame: &[DVec3; 3],
+    on_lattice: impl Fn(usize) -> bool,
+) -> DVec3 {
+    let mut lengths: [Vec<f64>; 3] = Default::default();
+    for v in (0..topo.num_vertices()).filter(|&v| on_lattice(v)) {
+        for &j in topo.neighbors(v) {
+            let d = p[j as usize] - p[v];
+            if (j as usize) > v
+                && let Some(a) = along_axis(frame, d)
+            {
+                lengths[a].push(d.length());
+            }
+        }
+    }
+    let median = |l: &mut Vec<f64>| {
+        let mid = l.len() / 2;
+        (!l.is_empty()).then(|| *l.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1)
+    };
+    let per_axis: Vec<Option<f64>> = lengths.iter_mut().map(median).collect();
+    let mut all: Vec<f64> = per_axis.iter().flatten().copied().collect();
+    let fallback = median(&mut all).unwrap_or(1.0);
+    DVec3::new(
+        per_axis[0].unwrap_or(fallback),
+        per_axis[1].unwrap_or(fallback),
+        per_axis[2].unwrap_or(fallback),
+    )
 }
 
 /// The slabs of a marching-cubes mesh of a mask whose vertices sit on
@@ -461,6 +540,47 @@ mod tests {
             assert!(room.allows(v, input[v], input[v] + within * along));
         }
         assert!(long > 0, "the fixture has edges longer than a voxel");
+    }
+
+    #[test]
+    fn a_thick_slice_lattice_gets_the_dual_voxel_of_each_axis() {
+        // Voxels 2.5 times as deep as wide: the dual voxel is half a voxel
+        // along each axis, 1.25 across the slices.
+        let (_, voxel) = shapes::voxel_sphere(6.0);
+        let spacing = DVec3::new(1.0, 1.0, 2.5);
+        let mut mesh = voxel.clone();
+        for p in mesh.positions_mut() {
+            *p *= spacing;
+        }
+        let topo = Topology::build(&mesh);
+        let bound = FidelityBound::new(&mesh, &topo, 0.5);
+        assert!(bound.has_lattice());
+        let (frame, found, _) = bound.in_frame();
+        let along = |axis: DVec3| frame.iter().position(|a| a.dot(axis).abs() > 0.99).unwrap();
+        assert!((found[along(DVec3::Z)] - 2.5).abs() < 1e-9, "{found}");
+        assert!((found[along(DVec3::X)] - 1.0).abs() < 1e-9, "{found}");
+        let input = mesh.positions();
+        // Every lattice vertex, terraces included (whose own edges are all
+        // one voxel long): 1.2 across the slices is inside, 0.55 along them
+        // is not.
+        for (v, &o) in input.iter().enumerate() {
+            assert!(bound.allows(v, o, o + 1.2 * DVec3::Z));
+            assert!(!bound.allows(v, o, o + 0.55 * DVec3::X));
+        }
+        // The fixes' room is the ellipsoid of one voxel along each axis.
+        let room = bound.widened(2.0);
+        let (v, o) = (0, input[0]);
+        assert!(room.allows(v, o, o + 2.4 * DVec3::Z));
+        assert!(room.allows(v, o, o + 0.99 * DVec3::Y));
+        assert!(!room.allows(v, o, o + 1.01 * DVec3::X));
+        assert!(!room.allows(v, o, o + DVec3::new(0.75, 0.0, 0.75 * 2.5)));
+        let mut p = input.to_vec();
+        p[v] = o + DVec3::new(2.0, 0.0, 0.0);
+        Fidelity::new(Some(&room), input).apply(&mut p);
+        assert!((p[v] - o - DVec3::X).length() < 1e-9, "{}", p[v] - o);
+        p[v] = o + DVec3::new(0.0, 0.0, 4.0);
+        Fidelity::new(Some(&bound), input).apply(&mut p);
+        assert!((p[v] - o - 1.25 * DVec3::Z).length() < 1e-9, "{}", p[v] - o);
     }
 
     #[test]
