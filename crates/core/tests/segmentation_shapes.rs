@@ -8,7 +8,7 @@
 //! the full figures.
 
 use meshsmooth_core::shapes::{self, Shape};
-use meshsmooth_core::{Mesh, NoProgress, Params, run};
+use meshsmooth_core::{Mesh, NoProgress, Params, SmoothOutput, run};
 use std::sync::atomic::AtomicBool;
 
 const PLACEMENTS: u64 = 8;
@@ -27,7 +27,9 @@ fn check<S: Shape + Copy>(name: &str, shape: S) {
     }
 }
 
-fn check_run(what: &str, shape: &dyn Shape, mesh: &Mesh) {
+/// `mesh` smoothed at the defaults, with no face folded and no quad
+/// twisted.
+fn smoothed_unfolded(what: &str, mesh: &Mesh) -> SmoothOutput {
     let out = run(
         mesh,
         &Params::default(),
@@ -38,6 +40,12 @@ fn check_run(what: &str, shape: &dyn Shape, mesh: &Mesh) {
     let fin = out.report.stages.final_stage.as_ref().expect("final stage");
     assert_eq!(fin.inverted_faces, 0, "{what}: folded faces");
     assert_eq!(fin.twisted_quads, 0, "{what}: twisted quads");
+    out
+}
+
+fn check_run(what: &str, shape: &dyn Shape, mesh: &Mesh) {
+    let out = smoothed_unfolded(what, mesh);
+    let fin = out.report.stages.final_stage.as_ref().expect("final stage");
     // Voxel corners may go to their dual voxel's corner (sqrt(3)/2 voxel);
     // the quality fixes get a ball of one voxel.
     assert!(
@@ -182,16 +190,7 @@ fn thick_slices_are_smoothed_within_their_own_voxels() {
         semi_axes: sphere.radius * spacing,
     };
     let what = "voxel sphere on 1 x 1 x 2.5 voxels";
-    let out = run(
-        &mesh,
-        &Params::default(),
-        &NoProgress,
-        &AtomicBool::new(false),
-    )
-    .unwrap_or_else(|e| panic!("{what}: {e}"));
-    let fin = out.report.stages.final_stage.as_ref().expect("final stage");
-    assert_eq!(fin.inverted_faces, 0, "{what}: folded faces");
-    assert_eq!(fin.twisted_quads, 0, "{what}: twisted quads");
+    let out = smoothed_unfolded(what, &mesh);
     // Within one voxel of where it was, counted in each axis's spacing.
     let farthest = out
         .positions
