@@ -96,7 +96,7 @@ def main():
                     except Exception:  # a peer that refuses a mesh has no row
                         continue
                     results[tool] = (float(np.median(r)), max(r))
-                    if tool == "meshsmooth":
+                    if tool == "meshsmooth" and args.no_peers:
                         q = [quality(v, faces, out) for out, (v, faces) in zip(outs, meshes)]
                         worst_quality = (
                             sum(x[0] for x in q),

@@ -18,10 +18,11 @@ resolution (about 450k vertices as voxel quads; with the peers' sweep, minutes
 per placement). `wm_thick` samples the WM crop's map on voxels 2.5 times as
 long along the grid's third axis: a thick-slice acquisition (1 x 1 x 2.5 mm),
 which many clinical segmentations are; `gm_thick` the GM map at 1 x 1 x 2.5 mm
-(half its spacing in-plane), a thin folded sheet cut in thick slices. The meshes are made here the way the data folder's were: voxel quads
-with every boundary face of the mask (corners shared, non-manifold where
-voxels touch along an edge or at a corner), marching cubes by scikit-image at
-level 0.5 on the mask. The WM crop is measured over the vertices at least 3
+(half its spacing in-plane), a thin folded sheet cut in thick slices. The
+meshes are made here the way the data folder's were: voxel quads with every
+boundary face of the mask (corners shared, non-manifold where voxels touch
+along an edge or at a corner), marching cubes by scikit-image at level 0.5 on
+the mask. The WM crop is measured over the vertices at least 3
 voxels inside its crop, the GM map over all.
 
 For each mesh the table gives meshsmooth at its defaults and the best truth

@@ -166,7 +166,9 @@ pub struct FidelityBound {
 
 impl FidelityBound {
     /// The bound for `mesh`'s input positions with sizes of
-    /// `max_displacement` mean edge lengths (per vertex, its own edges).
+    /// `max_displacement` lattice spacings along each axis (a box, at the
+    /// vertices whose edges all run along the lattice's axes) or mean edge
+    /// lengths (a ball, per vertex, of its own edges).
     pub fn new(mesh: &Mesh, topo: &Topology, max_displacement: f64) -> Self {
         let p = mesh.positions();
         let frame = lattice_frame(topo, p);
@@ -175,14 +177,19 @@ impl FidelityBound {
         } else {
             None
         };
-        let on_lattice = |v: usize| {
-            frame.is_some_and(|f| {
-                topo.neighbors(v)
-                    .iter()
-                    .all(|&j| along_axis(&f, p[j as usize] - p[v]).is_some())
+        // Whether each vertex has all its edges along the lattice's axes.
+        let on_lattice: Vec<bool> = (0..topo.num_vertices())
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|v| {
+                frame.is_some_and(|f| {
+                    topo.neighbors(v)
+                        .iter()
+                        .all(|&j| along_axis(&f, p[j as usize] - p[v]).is_some())
+                })
             })
-        };
-        let spacing = frame.map_or(DVec3::ONE, |f| lattice_spacing(topo, p, &f, on_lattice));
+            .collect();
+        let spacing = frame.map_or(DVec3::ONE, |f| lattice_spacing(topo, p, &f, &on_lattice));
         let size = (0..topo.num_vertices())
             .into_par_iter()
             .with_min_len(4096)
@@ -190,7 +197,7 @@ impl FidelityBound {
                 if topo.neighbors(v).is_empty() {
                     return 0.0;
                 }
-                if on_lattice(v) {
+                if on_lattice[v] {
                     return max_displacement as f32;
                 }
                 let mut s = max_displacement * mean_edge_at(topo, p, v);
@@ -383,14 +390,9 @@ impl FidelityBound {
 /// the edges along it between the vertices `on_lattice`. An axis without
 /// such edges (no closed voxel surface lacks any) takes the others'
 /// median. Sequential, so the same for any thread count.
-fn lattice_spacing(
-    topo: &Topology,
-    p: &[DVec3],
-    frame: &[DVec3; 3],
-    on_lattice: impl Fn(usize) -> bool,
-) -> DVec3 {
+fn lattice_spacing(topo: &Topology, p: &[DVec3], frame: &[DVec3; 3], on_lattice: &[bool]) -> DVec3 {
     let mut lengths: [Vec<f64>; 3] = Default::default();
-    for v in (0..topo.num_vertices()).filter(|&v| on_lattice(v)) {
+    for v in (0..topo.num_vertices()).filter(|&v| on_lattice[v]) {
         for &j in topo.neighbors(v) {
             let d = p[j as usize] - p[v];
             if (j as usize) > v
@@ -462,6 +464,16 @@ mod tests {
     use super::*;
     use crate::shapes;
 
+    /// `mesh` with every position multiplied by `spacing`, axis by axis: a
+    /// mask's mesh on voxels of that shape.
+    fn stretched(mesh: &Mesh, spacing: DVec3) -> Mesh {
+        let mut mesh = mesh.clone();
+        for p in mesh.positions_mut() {
+            *p *= spacing;
+        }
+        mesh
+    }
+
     #[test]
     fn voxel_meshes_get_the_dual_voxel_and_others_a_ball() {
         let (_, voxel) = shapes::voxel_sphere(6.0);
@@ -516,11 +528,7 @@ mod tests {
         // or y edge are longer than that edge's spacing, and twice the
         // ball of half their mean would reach past one voxel along it.
         let (_, mc) = shapes::mc_sphere(6.0);
-        let spacing = DVec3::new(1.0, 1.0, 3.0);
-        let mut mesh = mc.clone();
-        for p in mesh.positions_mut() {
-            *p *= spacing;
-        }
+        let mesh = stretched(&mc, DVec3::new(1.0, 1.0, 3.0));
         let topo = Topology::build(&mesh);
         let bound = FidelityBound::new(&mesh, &topo, 0.5);
         let room = bound.widened(2.0);
@@ -547,11 +555,7 @@ mod tests {
         // Voxels 2.5 times as deep as wide: the dual voxel is half a voxel
         // along each axis, 1.25 across the slices.
         let (_, voxel) = shapes::voxel_sphere(6.0);
-        let spacing = DVec3::new(1.0, 1.0, 2.5);
-        let mut mesh = voxel.clone();
-        for p in mesh.positions_mut() {
-            *p *= spacing;
-        }
+        let mesh = stretched(&voxel, DVec3::new(1.0, 1.0, 2.5));
         let topo = Topology::build(&mesh);
         let bound = FidelityBound::new(&mesh, &topo, 0.5);
         assert!(bound.has_lattice());
