@@ -159,6 +159,8 @@ pub struct MarchingCubesGrid {
     /// written in voxel or axis-aligned coordinates, others for one with an
     /// oblique affine.
     pub frame: [DVec3; 3],
+    /// The voxel spacing along each axis of `frame`.
+    pub spacing: DVec3,
     /// Per vertex, the lattice edge it is the midpoint of (`None` for the
     /// few a crop's cut faces put elsewhere).
     pub edges: Vec<Option<LatticeEdge>>,
@@ -184,11 +186,8 @@ impl MarchingCubesGrid {
 /// and must then pass the same test as the standard axes. `O(n log n)`.
 pub fn marching_cubes_grid(topo: &Topology, positions: &[DVec3]) -> Option<MarchingCubesGrid> {
     let standard = [DVec3::X, DVec3::Y, DVec3::Z];
-    if let Some(edges) = edges_in_frame(positions, &standard, GRID_TOLERANCE) {
-        return Some(MarchingCubesGrid {
-            frame: standard,
-            edges,
-        });
+    if let Some(grid) = grid_in_frame(positions, &standard, GRID_TOLERANCE) {
+        return Some(grid);
     }
     let n = topo.num_vertices().min(positions.len());
     if n < 8 {
@@ -211,8 +210,8 @@ pub fn marching_cubes_grid(topo: &Topology, positions: &[DVec3]) -> Option<March
             let Some(frame) = refined_frame(positions, &frame) else {
                 continue;
             };
-            if let Some(edges) = edges_in_frame(positions, &frame, GRID_TOLERANCE) {
-                return Some(MarchingCubesGrid { frame, edges });
+            if let Some(grid) = grid_in_frame(positions, &frame, GRID_TOLERANCE) {
+                return Some(grid);
             }
         }
     }
@@ -258,14 +257,14 @@ fn axis_grids(positions: &[DVec3], frame: &[DVec3; 3]) -> Option<[(f64, f64); 3]
     Some(grid)
 }
 
-/// Per vertex, the lattice edge it is the midpoint of, when at least
-/// [`MIDPOINT_SHARE`] of `positions` sit, within `tolerance` half
-/// spacings, at midpoints of the edges of a grid with axes `frame`.
-fn edges_in_frame(
+/// The grid with axes `frame` whose edges' midpoints at least
+/// [`MIDPOINT_SHARE`] of `positions` sit at, within `tolerance` half
+/// spacings, with the lattice edge of each vertex.
+fn grid_in_frame(
     positions: &[DVec3],
     frame: &[DVec3; 3],
     tolerance: f64,
-) -> Option<Vec<Option<LatticeEdge>>> {
+) -> Option<MarchingCubesGrid> {
     let n = positions.len();
     if n < 8 {
         return None;
@@ -281,18 +280,23 @@ fn edges_in_frame(
             .count();
         midpoints as f64 >= MIDPOINT_SHARE * n as f64
     })?;
-    Some(
-        bits.iter()
-            .map(|b| {
-                let off = b.map(|b| b ^ flip).filter(|b| b.count_ones() == 1)?;
-                let axis = off.trailing_zeros() as u8;
-                Some(LatticeEdge {
-                    axis,
-                    spacing: 2.0 * grid[usize::from(axis)].1,
-                })
+    let spacing = DVec3::new(2.0 * grid[0].1, 2.0 * grid[1].1, 2.0 * grid[2].1);
+    let edges = bits
+        .iter()
+        .map(|b| {
+            let off = b.map(|b| b ^ flip).filter(|b| b.count_ones() == 1)?;
+            let axis = off.trailing_zeros() as u8;
+            Some(LatticeEdge {
+                axis,
+                spacing: spacing[usize::from(axis)],
             })
-            .collect(),
-    )
+        })
+        .collect();
+    Some(MarchingCubesGrid {
+        frame: *frame,
+        spacing,
+        edges,
+    })
 }
 
 /// Each vertex's parity on each axis's half grid (bit `a` for axis `a`),
@@ -527,6 +531,7 @@ mod tests {
         });
         let grid = marching_cubes_grid(&topo, &scaled).expect("a marching-cubes mesh");
         assert_eq!(grid.frame, [DVec3::X, DVec3::Y, DVec3::Z]);
+        assert!(grid.spacing.abs_diff_eq(DVec3::new(0.8, 0.8, 1.5), 1e-5));
     }
 
     #[test]

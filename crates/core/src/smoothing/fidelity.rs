@@ -34,8 +34,10 @@
 //! voxel spacing (slab): 0.5 gives the dual voxel on a lattice, so no vertex
 //! of a voxel mesh moves more than `sqrt(3) / 2` voxel, and the lattice edge
 //! on a marching-cubes mesh, whose ball is also at most `max_displacement`
-//! spacings of the vertex's edge (the quality fixes get twice the ball, or
-//! on a lattice the ellipsoid of twice the box's half-widths: one voxel).
+//! spacings of the vertex's edge (the quality fixes get twice the ball,
+//! capped at twice `max_displacement` spacings along each axis where the
+//! spacing differs by axis, or on a lattice the ellipsoid of twice the
+//! box's half-widths: one voxel).
 
 use super::project::mean_edge_at;
 use crate::fit::normals::vertex_normals_f32_by_faces;
@@ -154,14 +156,71 @@ pub struct FidelityBound {
     /// each axis (positive); elsewhere a ball radius (negative, stored as
     /// its negation); 0 holds the vertex fixed.
     size: Arc<[f32]>,
-    /// Whether a lattice vertex is held in the ellipsoid of its half-widths
-    /// (the quality fixes' room, [`FidelityBound::widened`]) rather than in
-    /// their box.
-    lattice_ellipsoid: bool,
+    /// Whether this is the quality fixes' room ([`FidelityBound::widened`]):
+    /// a lattice vertex is held in the ellipsoid of its half-widths rather
+    /// than in their box, and a ball is capped per axis by `caps`.
+    widened: bool,
     /// Per vertex, on a marching-cubes mesh of a mask: the slab across the
     /// surface that keeps its crossing on the vertex's lattice edge (`None`
     /// for a vertex off the lattice's edges).
     slabs: Option<Arc<[Option<Slab>]>>,
+    /// On a marching-cubes mesh of a grid whose spacing differs by axis:
+    /// the grid's axes and the most the quality fixes' ball may reach along
+    /// each ([`VoxelCaps`]).
+    caps: Option<VoxelCaps>,
+}
+
+/// The reach of the quality fixes' ball along each axis of an anisotropic
+/// marching-cubes grid: the room's factor times `max_displacement` times the
+/// grid's spacing along that axis, one voxel at the defaults. The ball is
+/// as wide as the vertex's own edge allows, and the edge across a thick
+/// slice is the slice's length: twice that ball would take a vertex more
+/// than a voxel along the thin axes. Capped per axis it is an ellipsoid
+/// that, like a voxel corner's room, keeps within one voxel along each
+/// axis. The smoothing passes' ball (half as wide, and held in the slab
+/// across the surface) stays uncapped: the surface crosses a long edge
+/// anywhere along it, and the passes need that freedom along the surface.
+#[derive(Debug, Clone, Copy)]
+struct VoxelCaps {
+    frame: [DVec3; 3],
+    reach: DVec3,
+}
+
+/// How much the spacing of a marching-cubes grid may differ between its
+/// axes and still count as isotropic: more than a file's rounding, less
+/// than any real voxel shape's.
+const ANISOTROPY: f64 = 1e-3;
+
+impl VoxelCaps {
+    /// The caps of `grid` for `max_displacement`, when its spacing
+    /// differs by axis.
+    fn of(grid: &MarchingCubesGrid, max_displacement: f64) -> Option<Self> {
+        let s = grid.spacing;
+        (s.max_element() > s.min_element() * (1.0 + ANISOTROPY)).then_some(VoxelCaps {
+            frame: grid.frame,
+            reach: max_displacement * s,
+        })
+    }
+
+    /// Offset `d` in units of the ellipsoid whose semi-axes are `radius`
+    /// capped by the reach along each axis: at most 1 inside it (a radius
+    /// of 0 holds the vertex where it is).
+    fn extent(&self, d: DVec3, radius: f64) -> f64 {
+        if radius <= 0.0 {
+            return if d == DVec3::ZERO { 0.0 } else { f64::INFINITY };
+        }
+        let f = &self.frame;
+        let semi = self.reach.min(DVec3::splat(radius));
+        (DVec3::new(f[0].dot(d), f[1].dot(d), f[2].dot(d)) / semi).length()
+    }
+
+    /// The caps of a bound `factor` times as large.
+    fn scaled(self, factor: f64) -> Self {
+        VoxelCaps {
+            reach: self.reach * factor,
+            ..self
+        }
+    }
 }
 
 impl FidelityBound {
@@ -212,27 +271,33 @@ impl FidelityBound {
             })
             .collect::<Vec<f32>>()
             .into();
+        let caps = grid
+            .as_ref()
+            .and_then(|grid| VoxelCaps::of(grid, max_displacement));
         let slabs = grid.map(|grid| marching_cubes_slabs(mesh, topo, max_displacement, &grid));
         FidelityBound {
             frame,
             spacing,
             size,
-            lattice_ellipsoid: false,
+            widened: false,
             slabs,
+            caps,
         }
     }
 
     /// `factor` times this bound's size at every vertex, as a ball off the
-    /// lattice and as the ellipsoid of the box's half-widths on it: the
-    /// room the quality fixes get, which must be able to open a triangle
-    /// that the box's walls flattened (a box of that size would reach
-    /// `sqrt(3)` times as far along its diagonals).
+    /// lattice (capped per axis on an anisotropic marching-cubes grid,
+    /// [`VoxelCaps`]) and as the ellipsoid of the box's half-widths on it:
+    /// the room the quality fixes get, which must be able to open a
+    /// triangle that the box's walls flattened (a box of that size would
+    /// reach `sqrt(3)` times as far along its diagonals).
     pub fn widened(&self, factor: f64) -> Self {
         FidelityBound {
             frame: self.frame,
             spacing: self.spacing,
             slabs: None,
-            lattice_ellipsoid: true,
+            caps: self.caps.map(|c| c.scaled(factor)),
+            widened: true,
             size: self
                 .size
                 .iter()
@@ -247,7 +312,8 @@ impl FidelityBound {
         FidelityBound {
             frame: self.frame,
             spacing: self.spacing,
-            lattice_ellipsoid: self.lattice_ellipsoid,
+            widened: self.widened,
+            caps: self.caps.map(|c| c.scaled(factor)),
             slabs: self.slabs.as_ref().map(|slabs| {
                 slabs
                     .iter()
@@ -279,7 +345,7 @@ impl FidelityBound {
             Some(f) if s > 0.0 => {
                 let h = f64::from(s) * (1.0 + ALLOW_SLACK);
                 let local = self.in_spacings(&f, d);
-                if self.lattice_ellipsoid {
+                if self.widened {
                     local.length() <= h
                 } else {
                     local.abs().max_element() <= h
@@ -290,7 +356,12 @@ impl FidelityBound {
                     d.dot(slab.normal.as_dvec3()).abs()
                         <= f64::from(slab.half_width) * (1.0 + ALLOW_SLACK)
                 });
-                in_slab && d.length() <= f64::from(s).abs() * (1.0 + ALLOW_SLACK)
+                let r = f64::from(s).abs();
+                let in_ball = match self.caps.filter(|_| self.widened) {
+                    Some(caps) => caps.extent(d, r) <= 1.0 + ALLOW_SLACK,
+                    None => d.length() <= r * (1.0 + ALLOW_SLACK),
+                };
+                in_slab && in_ball
             }
         }
     }
@@ -350,7 +421,7 @@ impl FidelityBound {
                 let bounded = if s > 0.0 {
                     let h = f64::from(s);
                     let local = self.in_spacings(&frame, d);
-                    let c = if self.lattice_ellipsoid {
+                    let c = if self.widened {
                         local.clamp_length_max(h)
                     } else {
                         local.clamp(DVec3::splat(-h), DVec3::splat(h))
@@ -371,9 +442,19 @@ impl FidelityBound {
                         b -= (across - across.clamp(-w, w)) * n;
                     }
                     let r = -f64::from(s);
-                    let len = b.length();
-                    if len > r {
-                        b *= r / len;
+                    match self.caps.filter(|_| self.widened) {
+                        Some(caps) => {
+                            let e = caps.extent(b, r);
+                            if e > 1.0 {
+                                b /= e;
+                            }
+                        }
+                        None => {
+                            let len = b.length();
+                            if len > r {
+                                b *= r / len;
+                            }
+                        }
                     }
                     if b == d {
                         return;
@@ -548,6 +629,52 @@ mod tests {
             assert!(room.allows(v, input[v], input[v] + within * along));
         }
         assert!(long > 0, "the fixture has edges longer than a voxel");
+    }
+
+    #[test]
+    fn the_fixes_room_keeps_a_thick_slice_marching_cubes_vertex_within_a_voxel_along_each_axis() {
+        // Voxels 2.5 times as deep as wide, on a grid turned off the world's
+        // axes: a vertex on an edge across the slices has edges longer than
+        // a thin voxel, and twice the ball of half their mean would reach
+        // past one thin voxel across its edge.
+        let spacing = DVec3::new(1.0, 1.0, 2.5);
+        let rot = glam::DQuat::from_euler(glam::EulerRot::XYZ, 0.4, -0.3, 0.9);
+        let (_, mc) = shapes::mc_sphere(6.0);
+        let mut mesh = stretched(&mc, spacing);
+        for p in mesh.positions_mut() {
+            *p = rot * *p;
+        }
+        let topo = Topology::build(&mesh);
+        let bound = FidelityBound::new(&mesh, &topo, 0.5);
+        let room = bound.widened(2.0);
+        let input = mesh.positions();
+        let grid = marching_cubes_grid(&topo, input).expect("a marching-cubes mesh");
+        let mut capped = 0;
+        for (v, edge) in grid.edges.iter().enumerate() {
+            let edge = edge.expect("every vertex is a midpoint");
+            let reach = mean_edge_at(&topo, input, v).min(edge.spacing);
+            for (axis, &dir) in grid.frame.iter().enumerate() {
+                let voxel = grid.spacing[axis];
+                assert!(!room.allows(v, input[v], input[v] + 1.01 * voxel * dir));
+                capped += usize::from(reach > 1.01 * voxel);
+            }
+            // Along its own edge the room is the ball's, as before.
+            let along = grid.direction(edge);
+            assert!(room.allows(v, input[v], input[v] + 0.99 * reach * along));
+        }
+        assert!(capped > 0, "the fixture has balls wider than a thin voxel");
+        // The smoothing's own bound keeps the ball.
+        let v = (0..input.len())
+            .find(|&v| {
+                grid.edges[v]
+                    .is_some_and(|e| mean_edge_at(&topo, input, v) > 1.2 && e.spacing > 2.0)
+            })
+            .expect("a vertex on a long edge with long edges");
+        let slab = bound.slab(v).expect("a midpoint has a slab");
+        let across = slab.normal.as_dvec3();
+        let thin = grid.frame[0] - grid.frame[0].dot(across) * across;
+        let step = 0.55 * thin.normalize();
+        assert!(bound.allows(v, input[v], input[v] + step));
     }
 
     #[test]
