@@ -10,7 +10,7 @@ use crate::fit::quadric_fit::FitModel;
 use crate::mesh::lattice::{is_marching_cubes_lattice, is_voxel_lattice};
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length, signed_volume};
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
-use crate::quality::{improve, is_defective};
+use crate::quality::{SLIVER_FRACTION, has_sliver_angle, improve, is_defective};
 use crate::report::{CurvatureVariation, QualityReport, StageMeasures};
 use crate::report::{
     InputGrid, LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
@@ -964,8 +964,15 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
         && let Some(parts) = run.volume_parts
         && summary.volume_offset != 0.0
     {
-        summary.volume_offset +=
-            restore_where_safe(mesh, topo, parts, positions, run.movable, run.quality_bound);
+        summary.volume_offset += restore_where_safe(
+            mesh,
+            topo,
+            parts,
+            positions,
+            run.movable,
+            run.quality_bound,
+            SLIVER_FRACTION * params.quality.sharp_angle_deg,
+        );
     }
     run.quality_fidelity.apply(positions);
     run.progress.update(Stage::Quality, 1.0);
@@ -979,13 +986,15 @@ const REOFFSET_ROUNDS: usize = 4;
 
 /// Restores each part's input volume after the quality fixes by an offset of at
 /// most [`MAX_VOLUME_REOFFSET`] of the mean edge length, over the movable
-/// vertices whose move folds or twists no face that was sound and keeps
-/// them within the quality bound: a round that would fold a face or leave
-/// the bound leaves that face's corners (or that vertex) where they are and
-/// solves again, up to [`REOFFSET_ROUNDS`] rounds. The mean offset applied, 0
-/// when no round succeeded (the positions are then unchanged). A thin
-/// neurite's few near-degenerate faces would otherwise keep the whole
-/// surface from its volume.
+/// vertices whose move folds or twists no face that was sound, closes no
+/// face's angle below `sliver_deg` that was above it (what the sliver fix
+/// opened stays open) and keeps them within the quality bound: a round
+/// that would fold or close a face or leave the bound leaves that face's
+/// corners (or that vertex) where they are and solves again, up to
+/// [`REOFFSET_ROUNDS`] rounds. The mean offset applied, 0 when no round
+/// succeeded (the positions are then unchanged). A thin neurite's few
+/// near-degenerate faces would otherwise keep the whole surface from its
+/// volume.
 fn restore_where_safe(
     mesh: &Mesh,
     topo: &Topology,
@@ -993,12 +1002,19 @@ fn restore_where_safe(
     positions: &mut [DVec3],
     movable: &[bool],
     quality_bound: Option<&FidelityBound>,
+    sliver_deg: f64,
 ) -> f64 {
     let input = mesh.positions();
+    let cos_floor = sliver_deg.to_radians().cos();
     let sound: Vec<bool> = (0..mesh.num_faces())
         .into_par_iter()
         .with_min_len(4096)
         .map(|f| !is_defective(mesh, f, positions, input))
+        .collect();
+    let open: Vec<bool> = (0..mesh.num_faces())
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|f| !has_sliver_angle(mesh, f, positions, cos_floor))
         .collect();
     let max_offset = MAX_VOLUME_REOFFSET * mean_edge_length(mesh, positions);
     let mut movable = movable.to_vec();
@@ -1015,7 +1031,10 @@ fn restore_where_safe(
         let folded: Vec<usize> = (0..mesh.num_faces())
             .into_par_iter()
             .with_min_len(4096)
-            .filter(|&f| sound[f] && is_defective(mesh, f, &trial, input))
+            .filter(|&f| {
+                (sound[f] && is_defective(mesh, f, &trial, input))
+                    || (open[f] && has_sliver_angle(mesh, f, &trial, cos_floor))
+            })
             .collect();
         let outside: Vec<usize> = match quality_bound {
             Some(b) => (0..trial.len())
@@ -1158,6 +1177,40 @@ mod tests {
     }
 
     #[test]
+    fn the_last_restoration_closes_no_face_below_the_sliver_floor() {
+        // A shrunk cube of voxels: the square faces' split triangles have
+        // 45 degree corners, and offsetting the vertices along their normals
+        // (diagonal at the cube's edges and corners) skews the faces there,
+        // closing some of those corners below a floor just under 45.
+        let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [6, 6, 6], |i, j, k| {
+            (1..5).contains(&i) && (1..5).contains(&j) && (1..5).contains(&k)
+        });
+        let mesh = voxel_boundary_mesh(&mask);
+        let topo = Topology::build(&mesh);
+        let movable = movable_mask(&topo, BoundaryRule::Fixed);
+        let parts = VolumeParts::new(&mesh, &topo);
+        let centre = DVec3::splat(3.0);
+        let shrunk: Vec<DVec3> = mesh
+            .positions()
+            .iter()
+            .map(|&p| centre + 0.97 * (p - centre))
+            .collect();
+        let floor: f64 = 44.9;
+        let closed = |p: &[DVec3]| {
+            (0..mesh.num_faces())
+                .filter(|&f| has_sliver_angle(&mesh, f, p, floor.to_radians().cos()))
+                .count()
+        };
+        assert_eq!(closed(&shrunk), 0);
+        let mut unguarded = shrunk.clone();
+        restore_where_safe(&mesh, &topo, &parts, &mut unguarded, &movable, None, 0.0);
+        assert!(closed(&unguarded) > 0, "the fixture closes faces");
+        let mut p = shrunk.clone();
+        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, floor);
+        assert_eq!(closed(&p), 0);
+    }
+
+    #[test]
     fn the_last_restoration_holds_back_what_it_cannot_move() {
         let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [6, 6, 6], |i, j, k| {
             (1..5).contains(&i) && (1..5).contains(&j) && (1..5).contains(&k)
@@ -1177,7 +1230,7 @@ mod tests {
 
         // Free to move: the volume comes back.
         let mut p = shrunk.clone();
-        let offset = restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None);
+        let offset = restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, 10.0);
         assert!(offset > 0.0);
         assert!((volume(&p) - target).abs() < 1e-6 * target);
 
@@ -1190,7 +1243,7 @@ mod tests {
         let mut p = shrunk.clone();
         p[corner] = input[corner] - DVec3::splat(0.0999);
         let before = p.clone();
-        let offset = restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, Some(&bound));
+        let offset = restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, Some(&bound), 10.0);
         assert!(offset > 0.0);
         assert_eq!(p[corner], before[corner]);
         assert!((volume(&p) - target).abs() < 1e-6 * target);
@@ -1201,7 +1254,7 @@ mod tests {
         let mut p = shrunk.clone();
         let before = p.clone();
         assert_eq!(
-            restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, Some(&bound)),
+            restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, Some(&bound), 10.0),
             0.0
         );
         assert_eq!(p, before);

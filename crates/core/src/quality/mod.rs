@@ -164,6 +164,13 @@ pub fn improve(
     }
 }
 
+/// Whether face `f` has a split-triangle angle whose cosine exceeds
+/// `cos_floor` at `positions` (a face with a repeated corner never has).
+pub fn has_sliver_angle(mesh: &Mesh, f: usize, positions: &[DVec3], cos_floor: f64) -> bool {
+    let face = mesh.face(f);
+    !local::has_repeated_corner(face) && local::max_split_cos(face, positions) > cos_floor
+}
+
 /// Whether face `f` is inverted relative to `input` or a twisted quad at
 /// `positions` (a face with a repeated corner never is).
 pub fn is_defective(mesh: &Mesh, f: usize, positions: &[DVec3], input: &[DVec3]) -> bool {
