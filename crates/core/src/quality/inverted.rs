@@ -6,9 +6,10 @@
 //! its star can open it, and the sharp-angle fix's relocations leave it.
 //! This fix moves a whole fold back towards the input, where no face is
 //! inverted by definition: the vertices of a cluster of inverted faces
-//! (faces sharing a vertex) that can move (interior, away from their input
-//! position) are moved together by the fraction `t` of the way to their
-//! input positions, trying the [`RETREATS`] from the smallest, and the
+//! (faces sharing a vertex) that can move (interior or non-manifold, away
+//! from their input position, see `movable`) are moved together by the
+//! fraction `t` of the way to their input positions, trying the
+//! [`RETREATS`] from the smallest, and the
 //! first move that leaves fewer inverted faces and makes nothing worse is
 //! kept (see `MoveTester`). When none is, the cluster takes in such
 //! vertices one ring further out and tries again, at most [`MAX_WIDENINGS`]
@@ -20,7 +21,7 @@
 //! Order: sequential, clusters in ascending order of their smallest face
 //! (deterministic); a sweep rescans the faces still inverted; the fix
 //! stops after a sweep that changes nothing, when none is left, or after
-//! `max_sweeps`. Only interior vertices move.
+//! `max_sweeps`. Only interior and non-manifold vertices move.
 
 use super::local::{MoveTester, Verdict, is_inverted};
 use crate::mesh::{Mesh, Topology, VertexKind};
@@ -184,14 +185,22 @@ pub(super) fn retreat_sweeps(
     stats
 }
 
-/// True when vertex `v` is interior and away from its input position.
+/// True when vertex `v` is interior or non-manifold and away from its input
+/// position. The staircase relaxation moves a voxel mesh's non-manifold
+/// vertices (where voxels touch along an edge or at a corner) and no later
+/// step does: each end of a one-voxel contact edge has the other as its
+/// only neighbour along the edge, so the relaxation pulls the two together
+/// and squeezes the side walls that share the edge. The relocating fixes
+/// cannot move them (they have no single fan to relocate over); going back
+/// toward the input, along the way they came, is the one repair left.
 pub(super) fn movable(topo: &Topology, v: usize, positions: &[DVec3], input: &[DVec3]) -> bool {
-    topo.kind(v) == VertexKind::Interior && positions[v] != input[v]
+    matches!(topo.kind(v), VertexKind::Interior | VertexKind::NonManifold)
+        && positions[v] != input[v]
 }
 
 /// The vertices of a cluster of faces in need of repair (inverted faces
-/// here, slivers in [`super::sliver`]) that can move back (interior, away
-/// from the input), with scratch.
+/// here, slivers in [`super::sliver`]) that can move back ([`movable`]),
+/// with scratch.
 #[derive(Debug, Default)]
 pub(super) struct Cluster {
     vertices: Vec<usize>,

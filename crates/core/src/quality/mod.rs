@@ -4,8 +4,10 @@
 //! ([`crate::report::measures`]).
 //!
 //! The fixes only move vertices (connectivity never changes), move only
-//! interior vertices, and keep a move only when it makes nothing worse: no
-//! face becomes inverted relative to the input, no quad becomes twisted, no
+//! interior vertices (those that move vertices back toward the input, also
+//! the non-manifold vertices the voxel relaxation moved), and keep a move
+//! only when it makes nothing worse: no face becomes inverted relative to
+//! the input, no quad becomes twisted, no
 //! quad corner divided by the triangle split opens beyond 160° (or beyond
 //! its angle before), no defect count grows, and the smallest
 //! split-triangle angle of the affected faces does not shrink (a move that

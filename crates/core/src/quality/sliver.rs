@@ -20,7 +20,9 @@
 //! Order: sequential, slivers in ascending face order (deterministic); a
 //! sweep rescans the slivers left; the fix stops after a sweep that
 //! changes nothing, when none is left, or after `max_sweeps`. Only
-//! interior vertices move.
+//! interior and non-manifold vertices move (a voxel mesh's side wall
+//! squeezed across a non-manifold edge opens only when that edge's ends go
+//! back, `inverted::movable`).
 
 use super::inverted::{RetreatRule, retreat_sweeps};
 use super::local::{Verdict, has_repeated_corner, max_split_cos};
@@ -94,7 +96,10 @@ pub fn fix_slivers(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mesh::VertexKind;
     use crate::quality::fixtures::{at, grid, min_split_angle};
+    use crate::shapes::{VoxelMask, voxel_boundary_mesh};
+    use glam::IVec3;
 
     #[test]
     fn a_sliver_goes_back_by_the_smallest_fraction_that_lifts_it() {
@@ -121,6 +126,46 @@ mod tests {
         assert!(min_split_angle(&m, &p, None) >= 10.0);
         for v in (0..p.len()).filter(|&v| v != a) {
             assert_eq!(p[v], squeezed[v], "vertex {v} is not the sliver's");
+        }
+    }
+
+    #[test]
+    fn a_side_wall_squeezed_across_a_non_manifold_edge_opens() {
+        // Two voxels of a thick-slice mask (1 x 1 x 2.5) touching along the
+        // edge x in [1, 2], y = 2, z = 5: its two ends are non-manifold.
+        let mask = VoxelMask::from_fn(IVec3::ZERO, [4, 4, 4], |i, j, k| {
+            (i, j, k) == (1, 1, 1) || (i, j, k) == (1, 2, 2)
+        });
+        let mut m = voxel_boundary_mesh(&mask);
+        for q in m.positions_mut() {
+            q.z *= 2.5;
+        }
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let ends: Vec<usize> = (0..m.num_vertices())
+            .filter(|&v| t.kind(v) == VertexKind::NonManifold)
+            .collect();
+        assert_eq!(ends.len(), 2);
+        // The relaxation pulls each end toward the other (its only
+        // neighbour along the edge): the edge closes to 0.4 and the side
+        // walls on it, 1 x 2.5, to slivers.
+        let mid = 0.5 * (input[ends[0]] + input[ends[1]]);
+        let mut p = input.clone();
+        for &v in &ends {
+            p[v] = mid + 0.4 * (input[v] - mid);
+        }
+        assert!(min_split_angle(&m, &p, None) < 10.0);
+        let squeezed = p.clone();
+        let stats = fix_slivers(&m, &t, &mut p, &input, None, 10.0, 10);
+        assert_eq!(stats.remaining, 0, "{stats:?}");
+        assert!(min_split_angle(&m, &p, None) >= 10.0);
+        for v in 0..p.len() {
+            if ends.contains(&v) {
+                let back = input[v].distance(p[v]);
+                assert!(back < input[v].distance(squeezed[v]), "end {v} went back");
+            } else {
+                assert_eq!(p[v], squeezed[v], "vertex {v} is not the edge's");
+            }
         }
     }
 

@@ -22,7 +22,8 @@
 //! Order: Gauss-Seidel, sequential, quads in ascending face order within a
 //! sweep (deterministic); a sweep rescans only the quads that were still
 //! twisted; the fix stops after a sweep that changes nothing, when none is
-//! left, or after `max_sweeps`. Only interior vertices move.
+//! left, or after `max_sweeps`. Only interior vertices move, and in the
+//! retreats also non-manifold ones (`inverted::movable`).
 
 use super::inverted::{Cluster, movable};
 use super::local::{MoveTester, Verdict, is_twisted};
@@ -140,8 +141,8 @@ pub fn fix_twisted_quads(
     stats
 }
 
-/// Moves the corners of quad `f` that can move back (interior, away from
-/// the input) toward their input positions, one corner alone (in corner
+/// Moves the corners of quad `f` that can move back (interior or
+/// non-manifold, away from the input) toward their input positions, one corner alone (in corner
 /// order) and then all of them together, each by the smallest of
 /// [`RETREATS`](super::inverted::RETREATS) that untwists the quad and adds no defect; keeps the first
 /// such move.
