@@ -12,7 +12,7 @@
 //! [`RETREATS`] from the smallest, and the
 //! first move that leaves fewer inverted faces and makes nothing worse is
 //! kept (see `MoveTester`). When none is, the cluster takes in such
-//! vertices one ring further out and tries again, at most [`MAX_WIDENINGS`]
+//! vertices one ring further out and tries again, at most [`FOLD_WIDENINGS`]
 //! times. The result gives up a little smoothing where the fold was, and
 //! only there. It runs after the sharp-angle fix, which opens most folds by
 //! single-vertex moves that keep the smoothing; on the synthetic shapes it
@@ -34,8 +34,15 @@ use serde::{Deserialize, Serialize};
 /// first: the least smoothing given up that opens the fold.
 pub const RETREATS: [f64; 5] = [0.125, 0.25, 0.5, 0.75, 1.0];
 
-/// How many times a cluster may take in one more ring of vertices.
-pub const MAX_WIDENINGS: usize = 2;
+/// How many times a fold's cluster may take in one more ring of vertices.
+/// In a mesh of slivers (the marching cubes of a probability map, where
+/// the surface passing near a grid node leaves a sliver in most cubes) a
+/// fold spreads over a few rings of faces that each turn with a small
+/// move, and going back only part of the way reopens it at the cluster's
+/// rim. A fold outranks the smoothing given up to open it; the search stays
+/// linear (each widening is one ring of a cluster of at most
+/// [`MAX_CLUSTER_FACES`] faces).
+pub const FOLD_WIDENINGS: usize = 4;
 
 /// Largest cluster of inverted faces moved as one; a larger one (a mesh
 /// turned inside out over a whole region) is left as it is.
@@ -74,6 +81,7 @@ pub fn fix_inverted_faces(
         cos_goal: 1.0,
         accept: &|v| !v.new_defect && v.inverted.1 < v.inverted.0 && v.twisted.1 <= v.twisted.0,
         fallback: None,
+        widenings: FOLD_WIDENINGS,
     };
     let s = retreat_sweeps(mesh, topo, positions, input, bound, max_sweeps, &rule);
     InvertedStats {
@@ -99,6 +107,8 @@ pub(super) struct RetreatRule<'r> {
     /// What is kept when no widening of the cluster gives an accepted
     /// move, tried on the widest cluster; `None`: nothing.
     pub fallback: Option<&'r dyn Fn(&Verdict) -> bool>,
+    /// How many times a cluster may take in one more ring of vertices.
+    pub widenings: usize,
 }
 
 /// What [`retreat_sweeps`] did; each fix reports it under its own name.
@@ -152,7 +162,7 @@ pub(super) fn retreat_sweeps(
                 continue;
             }
             let mut moved = None;
-            for widening in 0..=MAX_WIDENINGS {
+            for widening in 0..=rule.widenings {
                 if widening > 0 && !cluster.widen(topo, positions, input) {
                     break;
                 }

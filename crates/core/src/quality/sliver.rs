@@ -12,9 +12,8 @@
 //! sharing a vertex) goes back together by the smallest of the
 //! [`RETREATS`](super::inverted::RETREATS) that lifts every angle around it
 //! to the floor and makes nothing worse (see `MoveTester`), taking in one
-//! ring more at most [`MAX_WIDENINGS`](super::inverted::MAX_WIDENINGS)
-//! times; when none does, by the smallest that widens the cluster's
-//! smallest angle. Smoothing is given up only where a sliver was
+//! ring more at most [`SLIVER_WIDENINGS`] times; when none does, by the
+//! smallest that widens the cluster's smallest angle. Smoothing is given up only where a sliver was
 //! ([`retreat_sweeps`], the fold fix's mechanism).
 //!
 //! Order: sequential, slivers in ascending face order (deterministic); a
@@ -30,6 +29,11 @@ use crate::mesh::{Mesh, Topology};
 use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
+
+/// How many times a sliver's cluster may take in one more ring of
+/// vertices: each ring gives up more smoothing for an angle, where a fold
+/// (`FOLD_WIDENINGS`) is a defect worth more rings.
+pub const SLIVER_WIDENINGS: usize = 2;
 
 /// What the sliver fix did.
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
@@ -81,6 +85,7 @@ pub fn fix_slivers(
         cos_goal: cos_floor,
         accept: &|v| clean(v) && v.max_cos.1 <= cos_floor,
         fallback: Some(&|v| clean(v) && v.max_cos.1 < v.max_cos.0),
+        widenings: SLIVER_WIDENINGS,
     };
     let s = retreat_sweeps(mesh, topo, positions, input, bound, max_sweeps, &rule);
     SliverStats {
