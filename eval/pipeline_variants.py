@@ -1,0 +1,114 @@
+"""Meshes that other segmentation pipelines make from the same probability
+maps, smoothed by meshsmooth and by the peers at their defaults, with the
+metrics of `compare_peers.py`:
+
+- `softmc`: marching cubes of the probability map itself at the threshold
+  (a soft segmentation meshed directly). Its vertices interpolate the map
+  along the grid's edges, so it is not a marching-cubes mesh of a mask and
+  gets no slabs. The truth is the same surface built finer, so the input
+  already sits on it (a few thousandths of a voxel): the truth column shows
+  how much of it a smoother gives up, the quality columns what it does to
+  the slivers such a mesh is full of.
+- `blurmc`: marching cubes at 0.5 of the mask blurred by a Gaussian of one
+  voxel (a common way to soften a binary mask before meshing); the blur
+  itself moves thin parts off the truth.
+- `decimc`: the mask's marching cubes decimated to 30% of its faces by
+  PyMeshLab's quadric edge collapse (what a viewer or a mesh export often
+  does); its edges are several voxels long where the surface is flat.
+
+    python3 eval/pipeline_variants.py [--data DIR] [--binary PATH] [--only wm_softmc,...]
+
+Truth RMS in mm against the map's threshold surface (`meshmetrics.Truth`;
+the WM crop over the vertices at least 3 voxels inside it), the largest move
+in the map's voxels.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import compare_peers as cp  # noqa: E402
+import meshmetrics as mm  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+LEVEL = 127.5
+
+# map: (probability map, crop margin in voxels or None)
+MAPS = {
+    "wm": ("mni152_wm_crop48_1mm_prob.nii.gz", 3),
+    "gm": ("mni152_gm_2mm_prob.nii.gz", None),
+}
+
+
+def variants(data, affine):
+    """The three meshes of one map (`data`, its `affine`), in world
+    coordinates: name -> (vertices, faces)."""
+    import pymeshlab
+    from scipy.ndimage import gaussian_filter
+    from skimage.measure import marching_cubes
+
+    def world(v):
+        return v @ affine[:3, :3].T + affine[:3, 3]
+
+    def mc(volume, level):
+        v, f, _, _ = marching_cubes(np.pad(volume, 1), level)
+        return world(v - 1.0), f
+
+    mask = (data > LEVEL).astype(np.float64)
+    out = {"softmc": mc(data, LEVEL), "blurmc": mc(gaussian_filter(mask, 1.0), 0.5)}
+    v, f = mc(mask, 0.5)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(v, f))
+    ms.meshing_decimation_quadric_edge_collapse(targetperc=0.3, preservetopology=True)
+    m = ms.current_mesh()
+    out["decimc"] = (np.asarray(m.vertex_matrix()), np.asarray(m.face_matrix()))
+    return {k: (v, [list(t) for t in f]) for k, (v, f) in out.items()}
+
+
+def main():
+    import nibabel as nib
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "bio"))
+    ap.add_argument("--binary", default=str(ROOT / "target" / "release" / "meshsmooth"))
+    ap.add_argument("--only", default="", help="comma-separated names, e.g. wm_softmc,gm_decimc")
+    args = ap.parse_args()
+    tools = {
+        "meshsmooth": cp.meshsmooth(args.binary),
+        "VTK windowed sinc (Slicer: 20 it, pass band 0.1)": cp.pyvista_filter("smooth_taubin", n_iter=20, pass_band=0.1),
+        "PyMeshLab cotangent Laplacian (2 steps)": cp.pymeshlab_filter(
+            "apply_coord_laplacian_smoothing", stepsmoothnum=2, cotangentweight=True
+        ),
+        "PyMeshLab Taubin (10 steps)": cp.pymeshlab_filter("apply_coord_taubin_smoothing"),
+    }
+    print("| tool | flipped | twisted | angles<20 | min angle | max move | curv. var. | volume | truth RMS | time |")
+    for key, (prob, margin) in MAPS.items():
+        wanted = [n for n in ("softmc", "blurmc", "decimc") if not args.only or f"{key}_{n}" in args.only.split(",")]
+        if not wanted:
+            continue
+        img = nib.load(str(Path(args.data) / prob))
+        truth = mm.Truth(str(Path(args.data) / prob))
+        meshes = variants(np.asarray(img.dataobj, dtype=np.float64), img.affine)
+        for name in wanted:
+            verts, faces = meshes[name]
+            print(f"\n## {key}_{name}: {len(verts)} vertices, {len(faces)} faces")
+            print(cp._format("input", mm.measure(verts, faces, verts, truth.voxel, truth, margin), 0.0))
+            for tool, f in tools.items():
+                t = time.perf_counter()
+                try:
+                    out = f(verts, faces)
+                except Exception as e:  # a peer that refuses a mesh is a row too
+                    print(f"| {tool} | failed: {e} |")
+                    continue
+                m = mm.measure(verts, faces, out, truth.voxel, truth, margin)
+                print(cp._format(tool, m, time.perf_counter() - t), flush=True)
+
+
+if __name__ == "__main__":
+    main()
