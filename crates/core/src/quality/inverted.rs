@@ -48,6 +48,13 @@ pub const FOLD_WIDENINGS: usize = 4;
 /// turned inside out over a whole region) is left as it is.
 pub const MAX_CLUSTER_FACES: usize = 64;
 
+/// Most vertices a cluster's widenings take in: a few rings around
+/// vertices of high valence (the pipeline takes a thousand edges) could
+/// otherwise take in much of the mesh, and judging a move costs its
+/// vertices' faces, so a mesh of many such folds would cost the square of
+/// its size. The rings around a fold of a few faces stay far below it.
+pub const MAX_CLUSTER_VERTICES: usize = 512;
+
 /// What the inverted-face fix did.
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -262,13 +269,17 @@ impl Cluster {
         self.vertices.extend_from_slice(vertices);
     }
 
-    /// Adds the neighbours of the cluster's vertices that can move back;
-    /// false when there is none to add.
+    /// Adds the neighbours of the cluster's vertices that can move back,
+    /// up to [`MAX_CLUSTER_VERTICES`] in all; false when there is none to
+    /// add.
     fn widen(&mut self, topo: &Topology, positions: &[DVec3], input: &[DVec3]) -> bool {
         let before = self.vertices.len();
         for i in 0..before {
             for &w in topo.neighbors(self.vertices[i]) {
                 let w = w as usize;
+                if self.vertices.len() >= MAX_CLUSTER_VERTICES {
+                    return self.vertices.len() > before;
+                }
                 if movable(topo, w, positions, input) && !self.vertices.contains(&w) {
                     self.vertices.push(w);
                 }
@@ -395,5 +406,32 @@ mod tests {
         let stats = fix_inverted_faces(&m, &t, &mut p, &input, None, 10);
         assert_eq!(stats, InvertedStats::default());
         assert_eq!(p, bumped);
+    }
+
+    #[test]
+    fn widening_around_a_hub_stops_at_the_cluster_cap() {
+        // A double cone: two hubs of valence 800 joined by a ring. From the
+        // top hub, one widening would take in the whole ring.
+        let n = 800u32;
+        let mut p = vec![DVec3::Z, -DVec3::Z];
+        for k in 0..n {
+            let a = std::f64::consts::TAU * f64::from(k) / f64::from(n);
+            p.push(DVec3::new(a.cos(), a.sin(), 0.0));
+        }
+        let mut f = Vec::new();
+        for k in 0..n {
+            let (a, b) = (2 + k, 2 + (k + 1) % n);
+            f.push([0, a, b]);
+            f.push([1, b, a]);
+        }
+        let m = Mesh::from_polygons(p, &f).expect("valid double cone");
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let moved: Vec<DVec3> = input.iter().map(|&q| q * 0.99).collect();
+        let mut cluster = Cluster::default();
+        cluster.set(&[0]);
+        assert!(cluster.widen(&t, &moved, &input));
+        assert_eq!(cluster.vertices.len(), MAX_CLUSTER_VERTICES);
+        assert!(!cluster.widen(&t, &moved, &input));
     }
 }
