@@ -184,14 +184,11 @@ def main():
         print(_format("input", base, 0.0))
         best = None
         for tool, f in tools.items():
-            t = time.perf_counter()
             try:
-                out = f(verts, faces)
+                m, secs = run_measured(f, verts, faces, voxel, truth, margin)
             except Exception as e:  # a peer that refuses a mesh is a row too
                 print(f"| {tool} | failed: {e} |")
                 continue
-            secs = time.perf_counter() - t
-            m = mm.measure(verts, faces, out, voxel, truth, margin)
             rows.append({"mesh": name, "tool": tool, "seconds": secs, **m})
             print(_format(tool, m, secs), flush=True)
             if "truth_rms" in m and not tool.startswith("meshsmooth"):
@@ -201,6 +198,15 @@ def main():
             print(f"best peer truth RMS: {best[1]:.4f} ({best[0]})")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
+
+
+def run_measured(f, verts, faces, voxel, truth, margin):
+    """Runs the smoother `f` on the mesh and measures its output
+    (`meshmetrics.measure`): the measures and the seconds `f` took."""
+    t = time.perf_counter()
+    out = f(verts, faces)
+    secs = time.perf_counter() - t
+    return mm.measure(verts, faces, out, voxel, truth, margin), secs
 
 
 def _format(tool, m, secs):

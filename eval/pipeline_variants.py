@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -100,14 +99,12 @@ def main():
             print(f"\n## {key}_{name}: {len(verts)} vertices, {len(faces)} faces")
             print(cp._format("input", mm.measure(verts, faces, verts, truth.voxel, truth, margin), 0.0))
             for tool, f in tools.items():
-                t = time.perf_counter()
                 try:
-                    out = f(verts, faces)
+                    m, secs = cp.run_measured(f, verts, faces, truth.voxel, truth, margin)
                 except Exception as e:  # a peer that refuses a mesh is a row too
                     print(f"| {tool} | failed: {e} |")
                     continue
-                m = mm.measure(verts, faces, out, truth.voxel, truth, margin)
-                print(cp._format(tool, m, time.perf_counter() - t), flush=True)
+                print(cp._format(tool, m, secs), flush=True)
 
 
 if __name__ == "__main__":

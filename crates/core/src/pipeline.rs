@@ -1176,12 +1176,9 @@ mod tests {
         assert!(beside > 0);
     }
 
-    #[test]
-    fn the_last_restoration_closes_no_face_below_the_sliver_floor() {
-        // A shrunk cube of voxels: the square faces' split triangles have
-        // 45 degree corners, and offsetting the vertices along their normals
-        // (diagonal at the cube's edges and corners) skews the faces there,
-        // closing some of those corners below a floor just under 45.
+    /// A cube of 4 x 4 x 4 voxels, its topology, movable vertices and
+    /// volume parts, and its positions shrunk by 3% about its centre.
+    fn shrunk_voxel_cube() -> (Mesh, Topology, Vec<bool>, VolumeParts, Vec<DVec3>) {
         let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [6, 6, 6], |i, j, k| {
             (1..5).contains(&i) && (1..5).contains(&j) && (1..5).contains(&k)
         });
@@ -1190,11 +1187,21 @@ mod tests {
         let movable = movable_mask(&topo, BoundaryRule::Fixed);
         let parts = VolumeParts::new(&mesh, &topo);
         let centre = DVec3::splat(3.0);
-        let shrunk: Vec<DVec3> = mesh
+        let shrunk = mesh
             .positions()
             .iter()
             .map(|&p| centre + 0.97 * (p - centre))
             .collect();
+        (mesh, topo, movable, parts, shrunk)
+    }
+
+    #[test]
+    fn the_last_restoration_closes_no_face_below_the_sliver_floor() {
+        // The square faces' split triangles have 45 degree corners, and
+        // offsetting the vertices along their normals (diagonal at the
+        // cube's edges and corners) skews the faces there, closing some of
+        // those corners below a floor just under 45.
+        let (mesh, topo, movable, parts, shrunk) = shrunk_voxel_cube();
         let floor: f64 = 44.9;
         let closed = |p: &[DVec3]| {
             (0..mesh.num_faces())
@@ -1212,20 +1219,9 @@ mod tests {
 
     #[test]
     fn the_last_restoration_holds_back_what_it_cannot_move() {
-        let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [6, 6, 6], |i, j, k| {
-            (1..5).contains(&i) && (1..5).contains(&j) && (1..5).contains(&k)
-        });
-        let mesh = voxel_boundary_mesh(&mask);
-        let topo = Topology::build(&mesh);
-        let movable = movable_mask(&topo, BoundaryRule::Fixed);
-        let parts = VolumeParts::new(&mesh, &topo);
+        let (mesh, topo, movable, parts, shrunk) = shrunk_voxel_cube();
         let input = mesh.positions();
         let target = mesh.signed_volume();
-        let centre = DVec3::splat(3.0);
-        let shrunk: Vec<DVec3> = input
-            .iter()
-            .map(|&p| centre + 0.97 * (p - centre))
-            .collect();
         let volume = |p: &[DVec3]| signed_volume(&mesh, p);
 
         // Free to move: the volume comes back.
