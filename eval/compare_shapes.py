@@ -40,21 +40,6 @@ TOOL = ROOT / "target" / "release" / "examples" / "shape_meshes"
 PLACEMENTS = 8
 
 
-def quality(verts_in, faces, verts):
-    """Flipped faces (against the same input face), twisted quads, the
-    smallest triangle-split angle in degrees and the largest move in
-    voxels."""
-    va_in = mm.vector_areas(verts_in, faces)
-    va_out = mm.vector_areas(verts, faces)
-    angles = mm.triangle_angles(verts, mm.triangles(faces))
-    return (
-        int(((va_in * va_out).sum(1) < 0).sum()),
-        mm.twisted_quads(verts, faces),
-        float(angles.min()),
-        float(np.linalg.norm(verts - verts_in, axis=1).max()),
-    )
-
-
 def rms(tmp, shape, seed, verts, faces):
     path = os.path.join(tmp, "out.obj")
     mm.write_obj(path, verts, faces)
@@ -97,12 +82,13 @@ def main():
                         continue
                     results[tool] = (float(np.median(r)), max(r))
                     if tool == "meshsmooth" and args.no_peers:
-                        q = [quality(v, faces, out) for out, (v, faces) in zip(outs, meshes)]
+                        # Distances are in voxels: the largest move is too.
+                        q = [mm.quality(v, faces, out) for out, (v, faces) in zip(outs, meshes)]
                         worst_quality = (
-                            sum(x[0] for x in q),
-                            sum(x[1] for x in q),
-                            min(x[2] for x in q),
-                            max(x[3] for x in q),
+                            sum(x["flipped"] for x in q),
+                            sum(x["twisted"] for x in q),
+                            min(x["min_angle"] for x in q),
+                            max(x["max_move"] for x in q),
                         )
                 ours = results.pop("meshsmooth")
                 if args.no_peers:

@@ -225,6 +225,22 @@ class Truth:
         return self.scene.compute_distance(q).numpy().astype(np.float64)
 
 
+def quality(input_verts, faces, verts):
+    """The cheap measures of `verts` against `input_verts`: faces flipped
+    against the same input face, twisted quads, triangle-split angles under
+    20 degrees, the smallest one, and the largest move (in the mesh's units)."""
+    va_in = vector_areas(input_verts, faces)
+    va_out = vector_areas(verts, faces)
+    angles = triangle_angles(verts, triangles(faces))
+    return {
+        "flipped": int(((va_in * va_out).sum(1) < 0).sum()),
+        "twisted": twisted_quads(verts, faces),
+        "angles_lt20": int((angles < 20).sum()),
+        "min_angle": float(angles.min()),
+        "max_move": float(np.linalg.norm(verts - input_verts, axis=1).max()),
+    }
+
+
 def measure(input_verts, faces, verts, voxel=None, truth=None, truth_margin=None):
     """All measures of `verts` (an output of a smoother run on
     (`input_verts`, `faces`)) as a dict."""
@@ -234,24 +250,14 @@ def measure(input_verts, faces, verts, voxel=None, truth=None, truth_margin=None
     edge_len = float(np.linalg.norm(input_verts[edges[:, 0]] - input_verts[edges[:, 1]], axis=1).mean())
     unit = voxel if voxel else edge_len
     tris = triangles(faces)
-    va_in = vector_areas(input_verts, faces)
-    va_out = vector_areas(verts, faces)
-    flipped = int(((va_in * va_out).sum(1) < 0).sum())
-    angles = triangle_angles(verts, tris)
-    moves = np.linalg.norm(verts - input_verts, axis=1)
     counts = {}
     for face in faces:
         for a, b in zip(face, face[1:] + face[:1]):
             k = (min(a, b), max(a, b))
             counts[k] = counts.get(k, 0) + 1
-    out = {
-        "flipped": flipped,
-        "twisted": twisted_quads(verts, faces),
-        "angles_lt20": int((angles < 20).sum()),
-        "min_angle": float(angles.min()),
-        "max_move": float(moves.max() / unit),
-        "curv_var": curvature_variation(verts, faces, adj, edge_len),
-    }
+    out = quality(input_verts, faces, verts)
+    out["max_move"] /= unit
+    out["curv_var"] = curvature_variation(verts, faces, adj, edge_len)
     if is_closed(counts):
         v0 = signed_volume(input_verts, tris)
         out["volume_change"] = (signed_volume(verts, tris) - v0) / abs(v0)

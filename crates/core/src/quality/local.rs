@@ -117,6 +117,13 @@ pub(crate) fn max_split_cos(face: &[u32], positions: &[DVec3]) -> f64 {
     m
 }
 
+/// Whether `face` has a split-triangle angle whose cosine exceeds
+/// `cos_floor` at `positions` (a face with a repeated corner never has).
+#[inline]
+pub(crate) fn has_angle_below(face: &[u32], positions: &[DVec3], cos_floor: f64) -> bool {
+    !has_repeated_corner(face) && max_split_cos(face, positions) > cos_floor
+}
+
 /// A quad is twisted when the normals of its split triangles `(v1 v2 v3)`
 /// and `(v3 v4 v1)` are more than 90° apart. Other faces are never twisted.
 #[inline]

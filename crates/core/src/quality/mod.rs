@@ -7,9 +7,9 @@
 //! interior vertices (those that move vertices back toward the input, also
 //! the non-manifold vertices the voxel relaxation moved), and keep a move
 //! only when it makes nothing worse: no face becomes inverted relative to
-//! the input, no quad becomes twisted, no
-//! quad corner divided by the triangle split opens beyond 160° (or beyond
-//! its angle before), no defect count grows, and the smallest
+//! the input, no quad becomes twisted, no quad corner divided by the
+//! triangle split opens beyond 160° (or beyond its angle before), no
+//! defect count grows, and the smallest
 //! split-triangle angle of the affected faces does not shrink (a move that
 //! removes a twisted quad or an inverted face may shrink it: defects
 //! outrank angles). [`improve`] runs them in the order twisted quads, short
@@ -169,8 +169,7 @@ pub fn improve(
 /// Whether face `f` has a split-triangle angle whose cosine exceeds
 /// `cos_floor` at `positions` (a face with a repeated corner never has).
 pub fn has_sliver_angle(mesh: &Mesh, f: usize, positions: &[DVec3], cos_floor: f64) -> bool {
-    let face = mesh.face(f);
-    !local::has_repeated_corner(face) && local::max_split_cos(face, positions) > cos_floor
+    local::has_angle_below(mesh.face(f), positions, cos_floor)
 }
 
 /// Whether face `f` is inverted relative to `input` or a twisted quad at

@@ -13,8 +13,9 @@
 //! [`RETREATS`](super::inverted::RETREATS) that lifts every angle around it
 //! to the floor and makes nothing worse (see `MoveTester`), taking in one
 //! ring more at most [`SLIVER_WIDENINGS`] times; when none does, by the
-//! smallest that widens the cluster's smallest angle. Smoothing is given up only where a sliver was
-//! ([`retreat_sweeps`], the fold fix's mechanism).
+//! smallest that widens the cluster's smallest angle. Smoothing is given
+//! up only where a sliver was ([`retreat_sweeps`], the fold fix's
+//! mechanism).
 //!
 //! Order: sequential, slivers in ascending face order (deterministic); a
 //! sweep rescans the slivers left; the fix stops after a sweep that
@@ -24,7 +25,7 @@
 //! back, `inverted::movable`).
 
 use super::inverted::{RetreatRule, retreat_sweeps};
-use super::local::{Verdict, has_repeated_corner, max_split_cos};
+use super::local::{Verdict, has_angle_below};
 use crate::mesh::{Mesh, Topology};
 use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
@@ -59,9 +60,7 @@ pub struct SliverStats {
 /// sliver the input already had (a decimated neuron's). A face with a
 /// repeated corner never counts.
 fn is_sliver(face: &[u32], positions: &[DVec3], input: &[DVec3], cos_floor: f64) -> bool {
-    !has_repeated_corner(face)
-        && max_split_cos(face, positions) > cos_floor
-        && max_split_cos(face, input) <= cos_floor
+    has_angle_below(face, positions, cos_floor) && !has_angle_below(face, input, cos_floor)
 }
 
 /// Moves the slivers' vertices (faces with a split-triangle angle below

@@ -142,10 +142,10 @@ pub fn fix_twisted_quads(
 }
 
 /// Moves the corners of quad `f` that can move back (interior or
-/// non-manifold, away from the input) toward their input positions, one corner alone (in corner
-/// order) and then all of them together, each by the smallest of
-/// [`RETREATS`](super::inverted::RETREATS) that untwists the quad and adds no defect; keeps the first
-/// such move.
+/// non-manifold, away from the input) toward their input positions, one
+/// corner alone (in corner order) and then all of them together, each by
+/// the smallest of [`RETREATS`](super::inverted::RETREATS) that untwists
+/// the quad and adds no defect; keeps the first such move.
 fn retreat_corners(
     mesh: &Mesh,
     topo: &Topology,

@@ -209,9 +209,8 @@ impl VoxelCaps {
         if radius <= 0.0 {
             return if d == DVec3::ZERO { 0.0 } else { f64::INFINITY };
         }
-        let f = &self.frame;
         let semi = self.reach.min(DVec3::splat(radius));
-        (DVec3::new(f[0].dot(d), f[1].dot(d), f[2].dot(d)) / semi).length()
+        (in_frame_of(&self.frame, d) / semi).length()
     }
 
     /// The caps of a bound `factor` times as large.
@@ -357,7 +356,7 @@ impl FidelityBound {
                         <= f64::from(slab.half_width) * (1.0 + ALLOW_SLACK)
                 });
                 let r = f64::from(s).abs();
-                let in_ball = match self.caps.filter(|_| self.widened) {
+                let in_ball = match self.ball_caps() {
                     Some(caps) => caps.extent(d, r) <= 1.0 + ALLOW_SLACK,
                     None => d.length() <= r * (1.0 + ALLOW_SLACK),
                 };
@@ -375,7 +374,13 @@ impl FidelityBound {
 
     /// Offset `d` in the lattice's frame `f`, in its spacings.
     fn in_spacings(&self, f: &[DVec3; 3], d: DVec3) -> DVec3 {
-        DVec3::new(f[0].dot(d), f[1].dot(d), f[2].dot(d)) / self.spacing
+        in_frame_of(f, d) / self.spacing
+    }
+
+    /// The per-axis caps of a ball, which only the quality fixes' room
+    /// ([`FidelityBound::widened`]) has.
+    fn ball_caps(&self) -> Option<VoxelCaps> {
+        self.caps.filter(|_| self.widened)
     }
 
     /// The lattice's axes (the standard axes when the mesh has none), its
@@ -442,7 +447,7 @@ impl FidelityBound {
                         b -= (across - across.clamp(-w, w)) * n;
                     }
                     let r = -f64::from(s);
-                    match self.caps.filter(|_| self.widened) {
+                    match self.ball_caps() {
                         Some(caps) => {
                             let e = caps.extent(b, r);
                             if e > 1.0 {
@@ -465,6 +470,11 @@ impl FidelityBound {
                 held.store(true, Ordering::Relaxed);
             });
     }
+}
+
+/// Offset `d` in the coordinates of the orthonormal `frame`.
+fn in_frame_of(frame: &[DVec3; 3], d: DVec3) -> DVec3 {
+    DVec3::new(frame[0].dot(d), frame[1].dot(d), frame[2].dot(d))
 }
 
 /// The lattice's spacing along each axis of `frame`: the median length of
