@@ -11,6 +11,8 @@ ground truth. Peers run on the triangle split of a quad mesh; the metrics are
 taken on the original polygons with the peer's positions (no peer reorders
 vertices). `--sweep` runs each peer over iteration counts and strengths and
 prints the best truth RMS any setting reaches: the bar meshsmooth is held to.
+`--triangles` gives every tool the quad meshes as triangles (each quad split
+along its first diagonal), as a voxel mesh arrives in STL or glTF.
 """
 
 from __future__ import annotations
@@ -168,12 +170,19 @@ def main():
     ap.add_argument("--only", default="", help="comma-separated mesh names")
     ap.add_argument("--sweep", action="store_true", help="also sweep the peers' settings")
     ap.add_argument("--json", help="write all rows to this file")
+    ap.add_argument(
+        "--triangles",
+        action="store_true",
+        help="split every quad along its first diagonal first, as STL and glTF write a voxel mesh",
+    )
     args = ap.parse_args()
     rows = []
     names = [n for n in MESHES if not args.only or n in args.only.split(",")]
     for name in names:
         path, prob, margin = MESHES[name]
         verts, faces = mm.read_obj(os.path.join(args.data, path))
+        if args.triangles:
+            faces = [list(t) for t in mm.triangles(faces)]
         truth = mm.Truth(os.path.join(args.data, prob)) if prob else None
         voxel = truth.voxel if truth else None
         tools = defaults(args.binary)

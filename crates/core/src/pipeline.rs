@@ -8,7 +8,9 @@ use crate::error::{ErrorCode, ShapeError};
 use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::FitModel;
 use crate::mesh::lattice::{is_marching_cubes_lattice, is_voxel_lattice};
-use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length, signed_volume};
+use crate::mesh::{
+    Mesh, PairedFaces, Topology, VertexKind, mean_edge_length, paired_voxel_faces, signed_volume,
+};
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
 use crate::quality::{SLIVER_FRACTION, has_sliver_angle, improve, is_defective};
 use crate::report::{CurvatureVariation, QualityReport, StageMeasures};
@@ -201,8 +203,15 @@ const QUALITY_ROOM: f64 = 2.0;
 /// A smoothing run's inputs, shared by its stages.
 #[derive(Clone, Copy)]
 struct Run<'a> {
+    /// The mesh smoothed: the input, or its split voxel faces paired back
+    /// into quads ([`paired_voxel_faces`]).
     mesh: &'a Mesh,
     topo: &'a Topology,
+    /// The input's own faces and topology, which every stage is measured
+    /// on: the same as `mesh` unless its triangles were paired.
+    measured: (&'a Mesh, &'a Topology),
+    /// Triangle pairs joined back into voxel faces.
+    paired_triangles: usize,
     /// [`movable_mask`].
     movable: &'a [bool],
     /// [`VertexMasks::relaxable`].
@@ -333,8 +342,8 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
         timings.time(Stage::Initial, || initial_stage(run, &mut positions))?;
     let initial = timings.time(Stage::Report, || {
         measure_stage(
-            mesh,
-            topo,
+            run.measured.0,
+            run.measured.1,
             &positions,
             mesh.positions(),
             None,
@@ -708,13 +717,31 @@ pub fn run(
     let _enter = span.enter();
     let mut timings = Timings::default();
     progress.update(Stage::Analyse, 0.0);
-    let (topo, masks, mut report) = timings.time(Stage::Analyse, || analyse(mesh, params))?;
+    let (input_topo, input_masks, mut report) =
+        timings.time(Stage::Analyse, || analyse(mesh, params))?;
+    // A voxel mesh written as triangles is smoothed as its voxel faces; the
+    // measures stay on the file's triangles.
+    let input_mesh = mesh;
+    let paired = timings.time(Stage::Analyse, || {
+        (params.method == Method::WangYu)
+            .then(|| paired_voxel_faces(input_mesh, &input_topo))
+            .flatten()
+            .map(|PairedFaces { mesh, pairs }| {
+                let topo = Topology::build(&mesh);
+                let masks = vertex_masks(&topo, params.boundary);
+                (mesh, topo, masks, pairs)
+            })
+    });
+    let (mesh, topo, masks, paired_triangles) = match &paired {
+        Some((mesh, topo, masks, pairs)) => (mesh, topo, masks, *pairs),
+        None => (input_mesh, &input_topo, &input_masks, 0),
+    };
     progress.update(Stage::Analyse, 1.0);
     check(cancel)?;
     let bound = params
         .max_displacement
         .filter(|_| params.method == Method::WangYu)
-        .map(|d| FidelityBound::new(mesh, &topo, d));
+        .map(|d| FidelityBound::new(mesh, topo, d));
     let quality_bound = bound.as_ref().map(|b| b.widened(QUALITY_ROOM));
     let fidelity = Fidelity::new(bound.as_ref(), mesh.positions());
     let quality_fidelity = fidelity.with_bound(quality_bound.as_ref());
@@ -722,14 +749,14 @@ pub fn run(
     // without one, only the Wang-Yu stages ask.
     let lattice = match &bound {
         Some(b) => b.has_lattice(),
-        None => params.method == Method::WangYu && is_voxel_lattice(&topo, mesh.positions()),
+        None => params.method == Method::WangYu && is_voxel_lattice(topo, mesh.positions()),
     };
     let marching_cubes = match &bound {
         Some(b) => b.has_marching_cubes(),
         None => {
             params.method == Method::WangYu
                 && !lattice
-                && is_marching_cubes_lattice(&topo, mesh.positions())
+                && is_marching_cubes_lattice(topo, mesh.positions())
         }
     };
     let volume_parts = (params.method == Method::WangYu
@@ -741,15 +768,17 @@ pub fn run(
             // (`staircase_steps` 0) may leave a voxel's corners where they
             // were.
             if lattice && params.staircase_steps > 0 {
-                VolumeParts::for_voxel_lattice(mesh, &topo)
+                VolumeParts::for_voxel_lattice(mesh, topo)
             } else {
-                VolumeParts::new(mesh, &topo)
+                VolumeParts::new(mesh, topo)
             }
         });
-    let away = lattice.then(|| away_from_pinches(&topo, &masks.movable));
+    let away = lattice.then(|| away_from_pinches(topo, &masks.movable));
     let run = Run {
         mesh,
-        topo: &topo,
+        topo,
+        measured: (input_mesh, &input_topo),
+        paired_triangles,
         movable: &masks.movable,
         relaxable: &masks.relaxable,
         fitted: away.as_deref().unwrap_or(&masks.movable),
@@ -775,11 +804,11 @@ pub fn run(
         Method::Laplacian | Method::Taubin => {
             let positions = timings.time(Stage::Initial, || {
                 let _s = tracing::info_span!("baseline").entered();
-                baseline(mesh, &topo, &masks.movable, params, cancel)
+                baseline(mesh, topo, &masks.movable, params, cancel)
             })?;
             report.stages.initial = Some(measure_stage(
-                mesh,
-                &topo,
+                input_mesh,
+                &input_topo,
                 &positions,
                 mesh.positions(),
                 None,
@@ -810,10 +839,10 @@ pub fn run(
 
     let curvature = timings.time(Stage::Report, || {
         let curvature =
-            unmoved_curvature.unwrap_or_else(|| stage_curvature(mesh, &topo, &positions, params));
+            unmoved_curvature.unwrap_or_else(|| stage_curvature(mesh, topo, &positions, params));
         report.stages.final_stage = Some(measure_stage(
-            mesh,
-            &topo,
+            input_mesh,
+            &input_topo,
             &positions,
             mesh.positions(),
             Some(&curvature),
@@ -899,8 +928,8 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
     }
     report.stages.initial = Some(r.initial);
     report.stages.adaptive = Some(measure_stage(
-        run.mesh,
-        run.topo,
+        run.measured.0,
+        run.measured.1,
         &r.adaptive,
         run.mesh.positions(),
         Some(&r.curvature),
@@ -914,6 +943,7 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
         volume_offset: r.volume_offset,
         volume_target_change: r.volume_target_change,
         fidelity_held_back: None,
+        paired_triangles: run.paired_triangles as u64,
         input_grid: if run.lattice {
             InputGrid::Voxel
         } else if run.marching_cubes {

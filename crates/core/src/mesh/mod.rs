@@ -5,11 +5,13 @@
 //! vertices, so vertex and face order are those of the input.
 
 pub(crate) mod lattice;
+mod paired;
 mod ring;
 mod topology;
 #[cfg(test)]
 pub(crate) use topology::tests::grid as test_grid;
 
+pub use paired::{PairedFaces, paired_voxel_faces};
 pub use ring::RingWalker;
 pub(crate) use topology::has_repeated_corner;
 pub use topology::{Topology, VertexKind};
