@@ -16,11 +16,13 @@ use glam::DVec3;
 
 /// How far from a right angle (as a cosine), and how far the fourth corner
 /// from the rectangle's (as a fraction of the diagonal), a pair of
-/// triangles may be and still count as one voxel face: single-precision
-/// files round coordinates in the seventh digit, a few ten-thousandths of
-/// a small voxel's diagonal far from the origin. Pairs of any other surface
-/// that pass it do not make a voxel lattice, which the pairs must.
-const RECTANGLE_TOLERANCE: f64 = 1e-3;
+/// triangles may be and still count as one voxel face: a file that writes
+/// seven significant digits rounds a corner a thousand millimetres from the
+/// origin by a thousandth of a millimetre, a fifth of a percent of a
+/// half-millimetre voxel's side. As loose as the lattice test's parallel
+/// edges (within 0.8 degrees): the pairs must make a voxel lattice, which
+/// the triangles of no other surface do.
+const RECTANGLE_TOLERANCE: f64 = 1e-2;
 
 /// The mesh with its split voxel faces paired back into quads, and how
 /// many pairs were joined.
@@ -189,6 +191,29 @@ mod tests {
             }
         }
         assert_eq!(split_back, tris.num_faces());
+    }
+
+    #[test]
+    fn a_rotated_thick_slice_mesh_far_from_the_origin_pairs_back() {
+        // Voxels of 0.5 x 0.5 x 3 mm on a rotated grid a thousand
+        // millimetres out, written with seven significant digits.
+        let (_, quads) = shapes::voxel_sphere(6.0);
+        let (s, c) = 0.5f64.sin_cos();
+        let round7 = |x: f64| format!("{x:.6e}").parse::<f64>().unwrap();
+        let far: Vec<DVec3> = quads
+            .positions()
+            .iter()
+            .map(|p| {
+                let q = *p * DVec3::new(0.5, 0.5, 3.0);
+                let r = DVec3::new(c * q.x - s * q.y, s * q.x + c * q.y, q.z);
+                let r = r + DVec3::new(-1234.5, 987.25, -765.125);
+                DVec3::new(round7(r.x), round7(r.y), round7(r.z))
+            })
+            .collect();
+        let mut tris = split(&quads, 0);
+        tris.set_positions(far).unwrap();
+        let paired = paired_voxel_faces(&tris, &Topology::build(&tris)).expect("a voxel mesh");
+        assert_eq!(paired.pairs, quads.num_faces());
     }
 
     #[test]
