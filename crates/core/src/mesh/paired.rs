@@ -13,6 +13,7 @@
 use super::lattice::{is_marching_cubes_lattice, lattice_frame};
 use super::{Mesh, Topology, has_repeated_corner};
 use glam::DVec3;
+use rayon::prelude::*;
 
 /// How far from a right angle (as a cosine), and how far the fourth corner
 /// from the rectangle's (as a fraction of the diagonal), a pair of
@@ -42,33 +43,42 @@ pub struct PairedFaces {
 /// otherwise. Linear in the mesh's size.
 pub fn paired_voxel_faces(mesh: &Mesh, topo: &Topology) -> Option<PairedFaces> {
     let p = mesh.positions();
-    if lattice_frame(topo, p).is_some() {
+    let triangles = mesh.faces().filter(|f| f.len() == 3).count();
+    if triangles == 0 {
         return None;
     }
     let partner: Vec<Option<u32>> = (0..mesh.num_faces())
+        .into_par_iter()
+        .with_min_len(4096)
         .map(|f| split_partner(mesh, topo, f))
         .collect();
+    // Mutual partners only: each triangle's diagonal is its longest edge,
+    // so a rectangle's two halves name each other.
+    let mutual = |f: usize| {
+        partner[f].filter(|&g| partner.get(g as usize).copied().flatten() == Some(f as u32))
+    };
+    let pairs = (0..mesh.num_faces())
+        .filter(|&f| mutual(f).is_some_and(|g| (g as usize) > f))
+        .count();
+    // A voxel mesh written as triangles pairs all of them; a mesh of which
+    // fewer than half pair is no lattice once paired (most of its vertices
+    // keep a diagonal edge), and the lattice tests below need not run.
+    if 4 * pairs < triangles
+        || lattice_frame(topo, p).is_some()
+        || is_marching_cubes_lattice(topo, p)
+    {
+        return None;
+    }
     let mut offsets = Vec::with_capacity(mesh.num_faces() + 1);
     let mut corners = Vec::with_capacity(mesh.face_vertices().len());
     offsets.push(0u32);
-    let mut pairs = 0;
-    for (f, &other) in partner.iter().enumerate() {
-        // Mutual partners only: each triangle's diagonal is its longest
-        // edge, so a rectangle's two halves name each other.
-        let mutual =
-            other.filter(|&g| partner.get(g as usize).copied().flatten() == Some(f as u32));
-        match mutual {
+    for f in 0..mesh.num_faces() {
+        match mutual(f) {
             Some(g) if (g as usize) < f => continue,
-            Some(g) => {
-                corners.extend(quad_of(mesh.face(f), mesh.face(g as usize))?);
-                pairs += 1;
-            }
+            Some(g) => corners.extend(quad_of(mesh.face(f), mesh.face(g as usize))?),
             None => corners.extend_from_slice(mesh.face(f)),
         }
         offsets.push(u32::try_from(corners.len()).ok()?);
-    }
-    if pairs == 0 || is_marching_cubes_lattice(topo, p) {
-        return None;
     }
     let paired = Mesh::new(p.to_vec(), offsets, corners).ok()?;
     let paired_topo = Topology::build(&paired);
