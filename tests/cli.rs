@@ -447,26 +447,27 @@ fn stl_soups_are_welded_and_keep_their_vertices() {
 }
 
 #[test]
-fn weld_flag_joins_an_obj_soup() {
-    let dir = scratch("weld_flag_joins_an_obj_soup");
+fn an_obj_soup_is_welded_unless_told_not_to() {
+    let dir = scratch("an_obj_soup_is_welded_unless_told_not_to");
     let (mesh, tris) = triangle_soup();
     let file_vertices = 3 * tris.len();
     let text = soup_obj(&tris);
     let input = dir.join("in.obj");
     std::fs::write(&input, &text).unwrap();
 
-    // OBJ is not welded by default; `report` takes the weld flags too.
+    // No two faces share a vertex: welded by default, in OBJ too; `report`
+    // takes the weld flags as well.
     let out = meshsmooth(&["report", path_str(&input), "--json"]);
-    assert_eq!(code(&out), 0, "{}", stderr(&out));
-    let json: Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(json["mesh"]["vertices"], file_vertices);
-    assert_eq!(json["mesh"]["file_vertices"], Value::Null);
-    let out = meshsmooth(&["report", path_str(&input), "--json", "--weld"]);
     assert_eq!(code(&out), 0, "{}", stderr(&out));
     let json: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(json["mesh"]["vertices"], mesh.num_vertices());
     assert_eq!(json["mesh"]["file_vertices"], file_vertices);
     assert_eq!(json["mesh"]["closed"], true);
+    let out = meshsmooth(&["report", path_str(&input), "--json", "--no-weld"]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let json: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["mesh"]["vertices"], file_vertices);
+    assert_eq!(json["mesh"]["file_vertices"], Value::Null);
 
     let (output, report) = (dir.join("out.obj"), dir.join("report.json"));
     let report = smooth_with_report(&input, &output, &report, &["--no-weld", "--weld", "-q"]);

@@ -256,8 +256,10 @@ pub struct Params {
     /// STL triangle soups). Every file vertex gets its welded vertex's
     /// position, so seams stay closed and an output in the input's format
     /// keeps the file's vertex count and order (another format gets the
-    /// welded mesh). `null` takes the format's default: on for
-    /// glTF/GLB and STL, off for OBJ and PLY. Default `null`.
+    /// welded mesh). `null` takes the format's default: on for glTF/GLB and
+    /// STL, and for an OBJ or PLY no two of whose faces share a vertex (a
+    /// face soup, as flat-shaded exports write); off for other OBJ and PLY.
+    /// Default `null`.
     pub weld: Option<bool>,
     /// Welding tolerance as a fraction of the bounding-box diagonal; 0 joins
     /// only equal positions. Default 0; range 0..=0.01.

@@ -424,7 +424,8 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
             (mesh, Source::Stl(src))
         }
     };
-    let weld_default = matches!(format, Format::Gltf | Format::Glb | Format::Stl);
+    let weld_default =
+        matches!(format, Format::Gltf | Format::Glb | Format::Stl) || is_face_soup(&mesh);
     let groups = match &source {
         Source::Gltf(src) => Some(src.vertex_groups()),
         _ => None,
@@ -444,6 +445,19 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
         vertex_map,
         source,
     })
+}
+
+/// Whether no two of `mesh`'s faces (of which it has more than one) share a
+/// vertex: a soup, as flat-shaded exports write one, whose faces smooth as
+/// one surface only once welded.
+fn is_face_soup(mesh: &Mesh) -> bool {
+    if mesh.num_faces() < 2 {
+        return false;
+    }
+    let mut used = vec![false; mesh.num_vertices()];
+    mesh.face_vertices()
+        .iter()
+        .all(|&v| !std::mem::replace(&mut used[v as usize], true))
 }
 
 /// Writes `doc` with `positions` (one per vertex of `doc.mesh`) as `format`.
@@ -650,5 +664,27 @@ mod tests {
             ..ReadOptions::default()
         };
         assert!(read_with(text, Format::Obj, &options).unwrap().welded);
+    }
+
+    #[test]
+    fn a_soup_of_faces_is_welded_by_default_in_any_format() {
+        // Two triangles of a square, each with its own corners.
+        let soup = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 4 5 6\n";
+        let doc = read(soup, Format::Obj, &ReadLimits::default()).unwrap();
+        assert!(doc.welded);
+        assert_eq!(doc.mesh.num_vertices(), 4);
+        // Shared corners: left as the file has them.
+        let shared = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 0\nf 1 2 3\nf 1 3 4\n";
+        let doc = read(shared, Format::Obj, &ReadLimits::default()).unwrap();
+        assert!(!doc.welded);
+        assert_eq!(doc.mesh.num_vertices(), 5);
+        // Asked not to weld, a soup stays one.
+        let options = ReadOptions {
+            weld: Some(false),
+            ..ReadOptions::default()
+        };
+        let doc = read_with(soup, Format::Obj, &options).unwrap();
+        assert!(!doc.welded);
+        assert_eq!(doc.mesh.num_vertices(), 6);
     }
 }
