@@ -75,8 +75,8 @@ pub struct ParamFlags {
 #[derive(Debug, Default, clap::Args)]
 pub struct WeldFlags {
     /// Join vertices that share a position before smoothing (default: on
-    /// for glTF, STL and face soups, off for other OBJ and PLY) [params:
-    /// weld = true].
+    /// for glTF, STL and files that repeat most of their positions, off
+    /// for other OBJ and PLY) [params: weld = true].
     #[arg(long, overrides_with = "no_weld")]
     weld: bool,
     /// Do not join vertices that share a position [params: weld = false].

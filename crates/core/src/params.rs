@@ -257,9 +257,9 @@ pub struct Params {
     /// position, so seams stay closed and an output in the input's format
     /// keeps the file's vertex count and order (another format gets the
     /// welded mesh). `null` takes the format's default: on for glTF/GLB and
-    /// STL, and for an OBJ or PLY no two of whose faces share a vertex (a
-    /// face soup, as flat-shaded exports write); off for other OBJ and PLY.
-    /// Default `null`.
+    /// STL, and for an OBJ or PLY that repeats most of its positions
+    /// (welding leaves at most half its vertices: a face soup, a
+    /// flat-shaded export); off for other OBJ and PLY. Default `null`.
     pub weld: Option<bool>,
     /// Welding tolerance as a fraction of the bounding-box diagonal; 0 joins
     /// only equal positions. Default 0; range 0..=0.01.

@@ -424,19 +424,28 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
             (mesh, Source::Stl(src))
         }
     };
-    let weld_default =
-        matches!(format, Format::Gltf | Format::Glb | Format::Stl) || is_face_soup(&mesh);
+    let weld_default = matches!(format, Format::Gltf | Format::Glb | Format::Stl);
     let groups = match &source {
         Source::Gltf(src) => Some(src.vertex_groups()),
         _ => None,
     };
-    let welded = options.weld.unwrap_or(weld_default);
-    let (mesh, vertex_map) = match welded {
-        true => match weld::weld(&mesh, options.weld_tolerance, groups.as_deref())? {
-            Some(w) => (w.mesh, Some(w.vertex_map)),
-            None => (mesh, None),
+    let weld = |mesh: &Mesh| weld::weld(mesh, options.weld_tolerance, groups.as_deref());
+    let (welded, mesh, vertex_map) = match options.weld.or(weld_default.then_some(true)) {
+        Some(false) => (false, mesh, None),
+        Some(true) => match weld(&mesh)? {
+            Some(w) => (true, w.mesh, Some(w.vertex_map)),
+            None => (true, mesh, None),
         },
-        false => (mesh, None),
+        // OBJ and PLY share vertices by index: a file that still repeats
+        // most of its positions was written face by face (a soup, a
+        // flat-shaded export), and its faces smooth as one surface only
+        // once welded.
+        None => match weld(&mesh)? {
+            Some(w) if 2 * w.mesh.num_vertices() <= mesh.num_vertices() => {
+                (true, w.mesh, Some(w.vertex_map))
+            }
+            _ => (false, mesh, None),
+        },
     };
     Ok(Document {
         welded,
@@ -445,19 +454,6 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
         vertex_map,
         source,
     })
-}
-
-/// Whether no two of `mesh`'s faces (of which it has more than one) share a
-/// vertex: a soup, as flat-shaded exports write one, whose faces smooth as
-/// one surface only once welded.
-fn is_face_soup(mesh: &Mesh) -> bool {
-    if mesh.num_faces() < 2 {
-        return false;
-    }
-    let mut used = vec![false; mesh.num_vertices()];
-    mesh.face_vertices()
-        .iter()
-        .all(|&v| !std::mem::replace(&mut used[v as usize], true))
 }
 
 /// Writes `doc` with `positions` (one per vertex of `doc.mesh`) as `format`.
@@ -667,14 +663,25 @@ mod tests {
     }
 
     #[test]
-    fn a_soup_of_faces_is_welded_by_default_in_any_format() {
-        // Two triangles of a square, each with its own corners.
-        let soup = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 4 5 6\n";
+    fn a_file_written_face_by_face_is_welded_by_default_in_any_format() {
+        // A tetrahedron, each face with its own three corners.
+        let corners = ["0 0 0", "1 0 0", "0 1 0", "0 0 1"];
+        let mut text = String::new();
+        for face in [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]] {
+            for c in face {
+                text += &format!("v {}\n", corners[c]);
+            }
+        }
+        for f in 0..4 {
+            text += &format!("f {} {} {}\n", 3 * f + 1, 3 * f + 2, 3 * f + 3);
+        }
+        let soup = text.as_bytes();
         let doc = read(soup, Format::Obj, &ReadLimits::default()).unwrap();
         assert!(doc.welded);
         assert_eq!(doc.mesh.num_vertices(), 4);
-        // Shared corners: left as the file has them.
-        let shared = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 0\nf 1 2 3\nf 1 3 4\n";
+        // A few repeated positions (a vertex split on purpose): left as the
+        // file has them.
+        let shared = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 0\nf 1 2 3\nf 5 3 4\n";
         let doc = read(shared, Format::Obj, &ReadLimits::default()).unwrap();
         assert!(!doc.welded);
         assert_eq!(doc.mesh.num_vertices(), 5);
@@ -685,6 +692,6 @@ mod tests {
         };
         let doc = read_with(soup, Format::Obj, &options).unwrap();
         assert!(!doc.welded);
-        assert_eq!(doc.mesh.num_vertices(), 6);
+        assert_eq!(doc.mesh.num_vertices(), 12);
     }
 }
