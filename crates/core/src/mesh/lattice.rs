@@ -218,22 +218,46 @@ pub fn marching_cubes_grid(topo: &Topology, positions: &[DVec3]) -> Option<March
     None
 }
 
+/// The fractions of the coordinates' span under which two of them count as
+/// one grid value when the half spacing is read off their gaps
+/// ([`axis_grids`]), tried in turn: a thousandth absorbs files written with
+/// a few decimals on an oblique grid, but is more than a half spacing on a
+/// mesh wider than 500 of them (a whole-body scan, two organs far apart),
+/// which a ten-thousandth reads up to 5000 (still ten times the spread a
+/// frame tilted by 1e-5 radian gives).
+const SPAN_ROUNDINGS: [f64; 2] = [GRID_TOLERANCE, 1e-4];
+
+/// The fewest half spacings a marching-cubes mesh spans along each axis of
+/// its grid: a voxel is two, and a mask of a few voxels across is no
+/// segmentation worth smoothing; a grid read from a wrong gap spans one.
+const MIN_GRID_STEPS: f64 = 4.0;
+
 /// Per axis of `frame`: the grid's origin and half spacing, from the
-/// smallest gap between the coordinates' distinct values, refined by a
+/// smallest gap between the coordinates' distinct values (values closer
+/// than `span_rounding` times their span count as one), refined by a
 /// least-squares fit of the coordinates within a quarter of a half spacing
 /// of it.
-fn axis_grids(positions: &[DVec3], frame: &[DVec3; 3]) -> Option<[(f64, f64); 3]> {
+fn axis_grids(
+    positions: &[DVec3],
+    frame: &[DVec3; 3],
+    span_rounding: f64,
+) -> Option<[(f64, f64); 3]> {
     let mut grid = [(0.0, 0.0); 3];
     for (axis, g) in frame.iter().zip(grid.iter_mut()) {
         let mut xs: Vec<f64> = positions.iter().map(|p| p.dot(*axis)).collect();
         xs.sort_unstable_by(f64::total_cmp);
         let (lo, hi) = (*xs.first()?, *xs.last()?);
-        let tiny = GRID_TOLERANCE * (hi - lo);
+        let tiny = span_rounding * (hi - lo);
         let half = xs
             .windows(2)
             .map(|w| w[1] - w[0])
             .filter(|&d| d > tiny)
             .min_by(f64::total_cmp)?;
+        // A grid read off the gap between two parts of a mesh, all of whose
+        // half spacings fell under `tiny`, spans a few of its steps at most.
+        if half * MIN_GRID_STEPS > hi - lo {
+            return None;
+        }
         // x = lo + k half, fitted over the k of every coordinate near one.
         let (mut s, mut sk, mut skk, mut sx, mut skx) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for &x in &xs {
@@ -269,16 +293,20 @@ fn grid_in_frame(
     if n < 8 {
         return None;
     }
-    let grid = axis_grids(positions, frame)?;
-    let bits = grid_parities(positions, frame, &grid, tolerance);
-    // Which parity is the voxel centres' on each axis is not known: try
-    // the eight choices; a midpoint has exactly one coordinate off them.
-    let flip = (0u8..8).find(|&flip| {
-        let midpoints = bits
-            .iter()
-            .filter(|b| b.is_some_and(|b| (b ^ flip).count_ones() == 1))
-            .count();
-        midpoints as f64 >= MIDPOINT_SHARE * n as f64
+    let (grid, bits, flip) = SPAN_ROUNDINGS.into_iter().find_map(|rounding| {
+        let grid = axis_grids(positions, frame, rounding)?;
+        let bits = grid_parities(positions, frame, &grid, tolerance);
+        // Which parity is the voxel centres' on each axis is not known:
+        // try the eight choices; a midpoint has exactly one coordinate
+        // off them.
+        let flip = (0u8..8).find(|&flip| {
+            let midpoints = bits
+                .iter()
+                .filter(|b| b.is_some_and(|b| (b ^ flip).count_ones() == 1))
+                .count();
+            midpoints as f64 >= MIDPOINT_SHARE * n as f64
+        })?;
+        Some((grid, bits, flip))
     })?;
     let spacing = DVec3::new(2.0 * grid[0].1, 2.0 * grid[1].1, 2.0 * grid[2].1);
     let edges = bits
@@ -432,7 +460,18 @@ fn edges_fit_frame(edges: &[DVec3], frame: &[DVec3; 3]) -> bool {
 /// each vertex's nearest grid point (within [`ROUGH_GRID_TOLERANCE`]) onto
 /// it, when at least [`MIDPOINT_SHARE`] of the vertices have one.
 fn refined_frame(positions: &[DVec3], frame: &[DVec3; 3]) -> Option<[DVec3; 3]> {
-    let grid = axis_grids(positions, frame)?;
+    SPAN_ROUNDINGS
+        .into_iter()
+        .find_map(|rounding| refined_frame_with(positions, frame, rounding))
+}
+
+/// [`refined_frame`] with the half spacing read at `span_rounding`.
+fn refined_frame_with(
+    positions: &[DVec3],
+    frame: &[DVec3; 3],
+    span_rounding: f64,
+) -> Option<[DVec3; 3]> {
+    let grid = axis_grids(positions, frame, span_rounding)?;
     let snapped = |p: &DVec3| -> Option<DVec3> {
         let mut g = DVec3::ZERO;
         for (axis, &(lo, half)) in grid.iter().enumerate() {
@@ -532,6 +571,37 @@ mod tests {
         let grid = marching_cubes_grid(&topo, &scaled).expect("a marching-cubes mesh");
         assert_eq!(grid.frame, [DVec3::X, DVec3::Y, DVec3::Z]);
         assert!(grid.spacing.abs_diff_eq(DVec3::new(0.8, 0.8, 1.5), 1e-5));
+    }
+
+    #[test]
+    fn a_marching_cubes_mesh_wider_than_a_thousand_half_spacings_is_found() {
+        // Two small balls 1500 voxels apart (two organs of a whole-body
+        // scan), on the axes and on an oblique grid.
+        let (_, ball) = shapes::mc_sphere(4.0);
+        let n = ball.num_vertices() as u32;
+        let far = DVec3::new(1500.0, 0.0, 0.0);
+        let positions: Vec<DVec3> = ball
+            .positions()
+            .iter()
+            .copied()
+            .chain(ball.positions().iter().map(|&p| p + far))
+            .collect();
+        let faces: Vec<Vec<u32>> = ball
+            .faces()
+            .map(<[u32]>::to_vec)
+            .chain(ball.faces().map(|f| f.iter().map(|&v| v + n).collect()))
+            .collect();
+        let pair = crate::mesh::Mesh::from_polygons(positions, &faces).unwrap();
+        let rot = glam::DQuat::from_euler(glam::EulerRot::XYZ, 0.3, -0.7, 1.1);
+        for turn in [glam::DQuat::IDENTITY, rot] {
+            let (topo, placed) = mapped(&pair, |p| turn * p);
+            let grid = marching_cubes_grid(&topo, &placed).expect("a marching-cubes mesh");
+            assert!(
+                grid.spacing.abs_diff_eq(DVec3::ONE, 1e-6),
+                "{:?}",
+                grid.spacing
+            );
+        }
     }
 
     #[test]
