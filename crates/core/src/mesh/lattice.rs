@@ -102,9 +102,13 @@ const MIDPOINT_SHARE: f64 = 0.99;
 
 /// How far from the half-spacing grid a coordinate may lie, in half
 /// spacings, and still count as on it: the rounding of a file's
-/// coordinates (single precision, a few decimals) moves them far less,
-/// anything off the grid by far more.
-const GRID_TOLERANCE: f64 = 1e-3;
+/// coordinates (single precision, a few decimals) moves them far less, and
+/// so does a level a little off the mask's midpoint (128 or 127 on a 0/255
+/// mask puts a vertex 0.4% of its edge from the midpoint, 0.008 half
+/// spacings); a mesh off the grid has a coordinate within it by chance one
+/// time in fifty, all three one time in 125,000, far short of
+/// [`MIDPOINT_SHARE`].
+const GRID_TOLERANCE: f64 = 1e-2;
 
 /// The same, for a frame estimated from one vertex's edges before it is
 /// refined over the whole mesh: the rounding of those few coordinates tilts
@@ -225,7 +229,7 @@ pub fn marching_cubes_grid(topo: &Topology, positions: &[DVec3]) -> Option<March
 /// mesh wider than 500 of them (a whole-body scan, two organs far apart),
 /// which a ten-thousandth reads up to 5000 (still ten times the spread a
 /// frame tilted by 1e-5 radian gives).
-const SPAN_ROUNDINGS: [f64; 2] = [GRID_TOLERANCE, 1e-4];
+const SPAN_ROUNDINGS: [f64; 2] = [1e-3, 1e-4];
 
 /// The fewest half spacings a marching-cubes mesh spans along each axis of
 /// its grid: a voxel is two, and a mask of a few voxels across is no
@@ -571,6 +575,28 @@ mod tests {
         let grid = marching_cubes_grid(&topo, &scaled).expect("a marching-cubes mesh");
         assert_eq!(grid.frame, [DVec3::X, DVec3::Y, DVec3::Z]);
         assert!(grid.spacing.abs_diff_eq(DVec3::new(0.8, 0.8, 1.5), 1e-5));
+    }
+
+    #[test]
+    fn marching_cubes_at_a_level_a_little_off_the_midpoint_is_found() {
+        use crate::shapes::Shape;
+        // Level 128 on a 0/255 mask: each vertex 128/255 of its edge from
+        // the outside centre, 0.002 voxel past the midpoint.
+        let (sphere, mc) = shapes::mc_sphere(6.0);
+        let (topo, shifted) = mapped(&mc, |p| {
+            let axis = (0..3)
+                .find(|&a| (p[a] - p[a].floor() - 0.5).abs() < 1e-9)
+                .unwrap();
+            let along = DVec3::AXES[axis];
+            let inward = if sphere.inside(p + 0.5 * along) {
+                1.0
+            } else {
+                -1.0
+            };
+            p + inward * (128.0 / 255.0 - 0.5) * along
+        });
+        let grid = marching_cubes_grid(&topo, &shifted).expect("a marching-cubes mesh");
+        assert!(grid.edges.iter().all(Option::is_some));
     }
 
     #[test]
