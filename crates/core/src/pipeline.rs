@@ -704,7 +704,9 @@ impl Smoothed {
 /// Stages: analyse (topology, input measures), then for `wang-yu` initial
 /// smoothing, labelling, adaptive smoothing with volume restoration and the
 /// quality fixes; for the baselines the baseline smoother (and the quality
-/// fixes). The report's hashes are left for the caller, who has the bytes.
+/// fixes). A voxel mesh written as triangles is smoothed as its voxel faces
+/// ([`paired_voxel_faces`]) and measured on its triangles. The report's
+/// hashes are left for the caller, who has the bytes.
 pub fn run(
     mesh: &Mesh,
     params: &Params,

@@ -747,7 +747,9 @@ function showReport(job, report) {
   ));
   if (report.wang_yu?.labels) {
     const l = report.wang_yu.labels;
-    const grid = report.wang_yu.input_grid ? ` (input grid: ${report.wang_yu.input_grid})` : '';
+    const pairs = report.wang_yu.paired_triangles
+      ? `, ${report.wang_yu.paired_triangles} triangle pairs read as voxel faces` : '';
+    const grid = report.wang_yu.input_grid ? ` (input grid: ${report.wang_yu.input_grid}${pairs})` : '';
     out.append(heading(`Labels${grid}`), table(Object.keys(l), [Object.values(l).map(String)]));
   }
   if (report.quality_fixes) {
