@@ -728,8 +728,7 @@ pub fn run(
         (params.method == Method::WangYu)
             .then(|| paired_voxel_faces(input_mesh, &input_topo))
             .flatten()
-            .map(|PairedFaces { mesh, pairs }| {
-                let topo = Topology::build(&mesh);
+            .map(|PairedFaces { mesh, topo, pairs }| {
                 let masks = vertex_masks(&topo, params.boundary);
                 (mesh, topo, masks, pairs)
             })

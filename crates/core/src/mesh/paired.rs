@@ -25,13 +25,15 @@ use rayon::prelude::*;
 /// the triangles of no other surface do.
 const RECTANGLE_TOLERANCE: f64 = 1e-2;
 
-/// The mesh with its split voxel faces paired back into quads, and how
-/// many pairs were joined.
+/// The mesh with its split voxel faces paired back into quads, its
+/// topology, and how many pairs were joined.
 #[derive(Debug)]
 pub struct PairedFaces {
     /// Same positions; each pair's two triangles become one quad, in the
     /// place of the pair's first triangle.
     pub mesh: Mesh,
+    /// The topology of `mesh`.
+    pub topo: Topology,
     /// Triangle pairs joined.
     pub pairs: usize,
 }
@@ -47,7 +49,7 @@ pub fn paired_voxel_faces(mesh: &Mesh, topo: &Topology) -> Option<PairedFaces> {
     if triangles == 0 {
         return None;
     }
-    let partner: Vec<Option<u32>> = (0..mesh.num_faces())
+    let partner: Vec<Option<(u32, [u32; 4])>> = (0..mesh.num_faces())
         .into_par_iter()
         .with_min_len(4096)
         .map(|f| split_partner(mesh, topo, f))
@@ -55,10 +57,16 @@ pub fn paired_voxel_faces(mesh: &Mesh, topo: &Topology) -> Option<PairedFaces> {
     // Mutual partners only: each triangle's diagonal is its longest edge,
     // so a rectangle's two halves name each other.
     let mutual = |f: usize| {
-        partner[f].filter(|&g| partner.get(g as usize).copied().flatten() == Some(f as u32))
+        partner[f].filter(|&(g, _)| {
+            partner
+                .get(g as usize)
+                .copied()
+                .flatten()
+                .is_some_and(|(h, _)| h as usize == f)
+        })
     };
     let pairs = (0..mesh.num_faces())
-        .filter(|&f| mutual(f).is_some_and(|g| (g as usize) > f))
+        .filter(|&f| mutual(f).is_some_and(|(g, _)| (g as usize) > f))
         .count();
     // A voxel mesh written as triangles pairs all of them; a mesh of which
     // fewer than half pair is no lattice once paired (most of its vertices
@@ -74,8 +82,8 @@ pub fn paired_voxel_faces(mesh: &Mesh, topo: &Topology) -> Option<PairedFaces> {
     offsets.push(0u32);
     for f in 0..mesh.num_faces() {
         match mutual(f) {
-            Some(g) if (g as usize) < f => continue,
-            Some(g) => corners.extend(quad_of(mesh.face(f), mesh.face(g as usize))?),
+            Some((g, _)) if (g as usize) < f => continue,
+            Some((_, quad)) => corners.extend(quad),
             None => corners.extend_from_slice(mesh.face(f)),
         }
         offsets.push(u32::try_from(corners.len()).ok()?);
@@ -85,15 +93,18 @@ pub fn paired_voxel_faces(mesh: &Mesh, topo: &Topology) -> Option<PairedFaces> {
     lattice_frame(&paired_topo, p)?;
     Some(PairedFaces {
         mesh: paired,
+        topo: paired_topo,
         pairs,
     })
 }
 
-/// The triangle across face `f`'s diagonal, when `f` is a triangle with a
-/// right angle opposite its longest edge, that edge joins exactly two
-/// faces, and the other face is a triangle that closes the rectangle with
-/// the same orientation.
-fn split_partner(mesh: &Mesh, topo: &Topology, f: usize) -> Option<u32> {
+/// The triangle across face `f`'s diagonal and the quad the two make, when
+/// `f` is a triangle with a right angle opposite its longest edge, that
+/// edge joins exactly two faces, and the other face is a triangle that
+/// closes the rectangle with the same orientation. For `f = (a b c)` and
+/// the other `(b a d)` the quad is `(b c a d)`, whose split along `b a`
+/// gives back the two ([`crate::quality`] measures quads on that split).
+fn split_partner(mesh: &Mesh, topo: &Topology, f: usize) -> Option<(u32, [u32; 4])> {
     let face = mesh.face(f);
     let [a, b, c] = diagonal_first(face, mesh.positions())?;
     let e = topo.edge(a as usize, b as usize)?;
@@ -114,7 +125,7 @@ fn split_partner(mesh: &Mesh, topo: &Topology, f: usize) -> Option<u32> {
     let p = mesh.positions();
     let (pa, pb, pc, pd) = (p[a as usize], p[b as usize], p[c as usize], p[d as usize]);
     let diagonal = (pb - pa).length();
-    ((pd - (pa + pb - pc)).length() <= RECTANGLE_TOLERANCE * diagonal).then_some(g)
+    ((pd - (pa + pb - pc)).length() <= RECTANGLE_TOLERANCE * diagonal).then_some((g, [b, c, a, d]))
 }
 
 /// Triangle `face` as `[a, b, c]` in its own winding with `a -> b` its
@@ -134,17 +145,6 @@ fn diagonal_first(face: &[u32], p: &[DVec3]) -> Option<[u32; 3]> {
     let (ca, cb) = (p[a as usize] - p[c as usize], p[b as usize] - p[c as usize]);
     let cos = ca.dot(cb) / (ca.length() * cb.length());
     (cos.abs() <= RECTANGLE_TOLERANCE).then_some([a, b, c])
-}
-
-/// The quad of triangles `f = (a b c)` and `g = (b a d)` sharing the
-/// diagonal `a b`: `(b c a d)`, whose split along `b a` gives back `f` and
-/// `g` ([`crate::quality`] measures quads on that split).
-fn quad_of(f: &[u32], g: &[u32]) -> Option<[u32; 4]> {
-    let [a, b, c] = (0..3)
-        .map(|i| [f[i], f[(i + 1) % 3], f[(i + 2) % 3]])
-        .find(|[a, b, _]| g.contains(a) && g.contains(b))?;
-    let d = *g.iter().find(|&&v| v != a && v != b)?;
-    Some([b, c, a, d])
 }
 
 #[cfg(test)]
