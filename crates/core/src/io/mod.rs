@@ -663,7 +663,7 @@ mod tests {
     }
 
     #[test]
-    fn a_file_written_face_by_face_is_welded_by_default_in_any_format() {
+    fn a_file_written_face_by_face_is_welded_by_default() {
         // A tetrahedron, each face with its own three corners.
         let corners = ["0 0 0", "1 0 0", "0 1 0", "0 0 1"];
         let mut text = String::new();
