@@ -7,8 +7,16 @@
 //! times and ends with the median and fastest wall time and the median CPU
 //! time (user + system, all threads): on a shared machine single runs vary
 //! by 10% or more, so compare medians of runs taken in turn.
+//!
+//! `-- FILE.obj 5` (any format the service reads) times the pipeline on a
+//! mesh file and on the r = 110 sphere in turn, 5 runs each, and ends with
+//! the two medians per vertex and their ratio: how much more a real mesh
+//! costs per vertex than the smooth sphere (reading the file not counted).
 
+use meshsmooth_core::io::{Format, ReadLimits, read};
+use meshsmooth_core::mesh::Mesh;
 use meshsmooth_core::{NoProgress, Params, run, shapes};
+use std::path::Path;
 use std::process::Command;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -86,6 +94,73 @@ fn one(radius: f64, first: bool) -> (f64, f64) {
     (wall, cpu)
 }
 
+/// One timed run on `mesh` (named `name`): prints its stages, returns the
+/// wall seconds.
+fn one_file(name: &str, mesh: &Mesh) -> f64 {
+    let t = Instant::now();
+    let out = run(
+        mesh,
+        &Params::default(),
+        &NoProgress,
+        &AtomicBool::new(false),
+    )
+    .expect("run");
+    let wall = t.elapsed().as_secs_f64();
+    let n = mesh.num_vertices();
+    let stages: Vec<String> = out
+        .report
+        .timings
+        .iter()
+        .map(|s| format!("{} {:.0}", s.stage, s.ms))
+        .collect();
+    println!(
+        "{name}  vertices {n:>8}  wall {wall:>6.3} s  ({:.2} us/vertex)  stages (ms): {}",
+        wall * 1e6 / n as f64,
+        stages.join(", ")
+    );
+    wall
+}
+
+/// The mesh file at `path`, read as the service reads an upload of its
+/// extension.
+fn read_file(path: &Path) -> Mesh {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let format = match ext.as_str() {
+        "obj" => Format::Obj,
+        "ply" => Format::Ply,
+        "stl" => Format::Stl,
+        "gltf" => Format::Gltf,
+        "glb" => Format::Glb,
+        _ => panic!("{}: not a mesh file extension", path.display()),
+    };
+    let bytes = std::fs::read(path).expect("read the mesh file");
+    read(&bytes, format, &ReadLimits::default())
+        .expect("parse the mesh file")
+        .mesh
+}
+
+/// `repeats` runs each of the file at `path` and the r = 110 sphere, in
+/// turn; prints their medians per vertex and the file's over the sphere's.
+fn file_against_sphere(path: &Path, repeats: usize) {
+    let mesh = read_file(path);
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("file");
+    let (_, sphere) = shapes::voxel_sphere(110.0);
+    let (mut file_us, mut sphere_us) = (Vec::new(), Vec::new());
+    for _ in 0..repeats {
+        file_us.push(one_file(name, &mesh) * 1e6 / mesh.num_vertices() as f64);
+        sphere_us.push(one_file("sphere r=110", &sphere) * 1e6 / sphere.num_vertices() as f64);
+    }
+    let (f, s) = (median(file_us), median(sphere_us));
+    println!(
+        "{name}: {repeats} runs each, median {f:.2} us/vertex against the sphere's {s:.2}: {:.2}x",
+        f / s
+    );
+}
+
 /// The median of `x` (the upper one of an even count).
 fn median(mut x: Vec<f64>) -> f64 {
     x.sort_by(f64::total_cmp);
@@ -109,6 +184,11 @@ fn main() {
                 median(runs.iter().map(|r| r.1).collect()),
             );
         }
+        return;
+    }
+    if let Some(path) = args.first().map(Path::new).filter(|p| p.is_file()) {
+        let repeats: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(1).max(1);
+        file_against_sphere(path, repeats);
         return;
     }
     println!("threads: {}", rayon::current_num_threads());
