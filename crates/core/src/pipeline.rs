@@ -1207,6 +1207,42 @@ mod tests {
         assert!(beside > 0);
     }
 
+    #[test]
+    fn a_marching_cubes_mesh_of_deep_voxels_keeps_half_its_needles_angles() {
+        // A folded sheet three voxels thick on a seeded placement, meshed
+        // by marching cubes on voxels six times as deep as wide (a clinical
+        // axial series): the faces across the slices are needles of 6.7
+        // degrees, under the sliver floor already in the input. Without a
+        // floor of their own the sharp-angle fix closed them to 0.9 degrees
+        // while it opened the faces around them.
+        let mask = shapes::voxel_mask(&shapes::placed(shapes::folded_sheet(3.0), 1));
+        let mut mesh = shapes::marching_cubes_mesh(&mask);
+        for p in mesh.positions_mut() {
+            p.z *= 6.0;
+        }
+        let out = run(
+            &mesh,
+            &Params::default(),
+            &crate::NoProgress,
+            &AtomicBool::new(false),
+        )
+        .expect("run");
+        let min_angle = |p: &[DVec3]| crate::quality::fixtures::min_split_angle(&mesh, p, None);
+        let (before, after) = (min_angle(mesh.positions()), min_angle(&out.positions));
+        assert!(before < 10.0, "the input has needles: {before}");
+        assert!(
+            after >= 0.45 * before,
+            "smallest angle {after} degrees from {before}"
+        );
+        let last = out
+            .report
+            .stages
+            .final_stage
+            .as_ref()
+            .expect("final measures");
+        assert_eq!(last.inverted_faces, 0);
+    }
+
     /// A cube of 4 x 4 x 4 voxels, its topology, movable vertices and
     /// volume parts, and its positions shrunk by 3% about its centre.
     fn shrunk_voxel_cube() -> (Mesh, Topology, Vec<bool>, VolumeParts, Vec<DVec3>) {

@@ -174,6 +174,33 @@ pub(crate) struct FaceState {
     pub deficit: f64,
 }
 
+/// The share of its input angle that a sliver of the input keeps through
+/// the angle-only moves of the sharp-angle fix ([`MoveTester::guarding`]).
+/// The sliver fix holds the faces the input had sound to the sliver floor,
+/// a fraction of the sharp-angle threshold
+/// ([`SLIVER_FRACTION`](super::SLIVER_FRACTION)), but cannot help a face
+/// that was a sliver already (going back to the input does not open it):
+/// without a floor of its own, the sharp-angle fix's moves that lower the
+/// summed angle deficit of a star may close such a face down to the
+/// mesh's smallest angle, and a marching-cubes mesh of voxels six times
+/// as deep as wide, whose faces along the deep axis are needles of 6-7
+/// degrees, then ends with hundreds of angles under 1 degree. The same
+/// fraction as the sliver floor's: each face is held to half of what it
+/// started from.
+pub(crate) const INPUT_SLIVER_KEEP: f64 = super::SLIVER_FRACTION;
+
+/// The cosine of the smallest angle the angle-only moves may leave a face
+/// whose smallest input angle has the cosine `input_cos`: for a sliver of
+/// the input (sharper than the angle of cosine `cos_guard`),
+/// [`INPUT_SLIVER_KEEP`] of that angle; 1 (no floor) for the others.
+fn input_sliver_floor(input_cos: f64, cos_guard: f64) -> f64 {
+    if input_cos > cos_guard {
+        (INPUT_SLIVER_KEEP * input_cos.clamp(-1.0, 1.0).acos()).cos()
+    } else {
+        1.0
+    }
+}
+
 /// A move may not open a quad's split corner beyond this angle (cosine of
 /// 160°), unless the corner was already wider.
 pub(crate) const WIDEST_CORNER_COS: f64 = -0.939_692_620_785_908_4;
@@ -293,6 +320,10 @@ pub(crate) struct Verdict {
     /// Summed angle deficit of the affected faces (see `FaceState`), before
     /// and after.
     pub deficit: (f64, f64),
+    /// A face the input already had sharper than the tester's guard ends
+    /// below [`INPUT_SLIVER_KEEP`] of its input angle and sharper than it
+    /// was ([`MoveTester::guarding`]).
+    pub input_sliver_shrunk: bool,
     /// A face whose angles all met the goal no longer does.
     pub newly_sharp: bool,
 }
@@ -316,10 +347,13 @@ impl Verdict {
         if self.new_defect || self.inverted.1 > self.inverted.0 || self.twisted.1 > self.twisted.0 {
             return false;
         }
-        if self.inverted.1 < self.inverted.0
-            || self.twisted.1 < self.twisted.0
-            || self.max_cos.1 < self.max_cos.0
-        {
+        if self.inverted.1 < self.inverted.0 || self.twisted.1 < self.twisted.0 {
+            return true;
+        }
+        if self.input_sliver_shrunk {
+            return false;
+        }
+        if self.max_cos.1 < self.max_cos.0 {
             return true;
         }
         !self.newly_sharp
@@ -338,6 +372,12 @@ pub(crate) struct MoveTester {
     starts: Vec<u32>,
     input_normals: Vec<DVec3>,
     before: Vec<FaceState>,
+    /// Per face of `faces`, the cosine of the smallest angle an
+    /// angle-only move may leave it ([`input_sliver_floor`]; 1 for none).
+    input_floor: Vec<f64>,
+    /// Cosine of the angle below which an input face is a sliver
+    /// ([`MoveTester::guarding`]).
+    guard: Option<f64>,
     cos_goal: f64,
     /// Each vertex given to `begin` with its longest edge: no move may take
     /// it farther than that.
@@ -355,6 +395,17 @@ impl MoveTester {
         MoveTester {
             bound: bound.cloned(),
             ..MoveTester::default()
+        }
+    }
+
+    /// The same tester, also flagging a move that takes a face the input
+    /// already had with an angle below the one of cosine `cos_guard` (a
+    /// sliver of the input) below [`INPUT_SLIVER_KEEP`] of its input angle
+    /// and below where the face was ([`Verdict::input_sliver_shrunk`]).
+    pub fn guarding(self, cos_guard: f64) -> Self {
+        MoveTester {
+            guard: Some(cos_guard),
+            ..self
         }
     }
 
@@ -395,8 +446,13 @@ impl MoveTester {
         self.starts.clear();
         self.input_normals.clear();
         self.before.clear();
+        self.input_floor.clear();
         for &f in &self.faces {
             let face = mesh.face(f as usize);
+            self.input_floor.push(match self.guard {
+                Some(c) => input_sliver_floor(max_split_cos(face, input), c),
+                None => 1.0,
+            });
             let start = self.input_normals.len();
             self.starts.push(start as u32);
             push_split_normals(face, input, &mut self.input_normals);
@@ -437,6 +493,7 @@ impl MoveTester {
             twisted: (0, 0),
             max_cos: (-1.0, -1.0),
             deficit: (0.0, 0.0),
+            input_sliver_shrunk: false,
             newly_sharp: false,
         };
         // A fix moves a vertex within its star; a longer jump (a fit or
@@ -455,7 +512,13 @@ impl MoveTester {
                     .is_some_and(|(_, &o)| !bound.allows(w, o, p))
             });
         }
-        for ((&f, b), &start) in self.faces.iter().zip(&self.before).zip(&self.starts) {
+        for (((&f, b), &start), &input_floor) in self
+            .faces
+            .iter()
+            .zip(&self.before)
+            .zip(&self.starts)
+            .zip(&self.input_floor)
+        {
             let normals = &self.input_normals[start as usize..];
             let a = face_state_at(mesh.face(f as usize), pos, normals, self.cos_goal);
             verdict.new_defect |= (a.inverted && !b.inverted)
@@ -470,6 +533,7 @@ impl MoveTester {
             verdict.deficit.0 += b.deficit;
             verdict.deficit.1 += a.deficit;
             verdict.newly_sharp |= b.max_cos <= self.cos_goal && a.max_cos > self.cos_goal;
+            verdict.input_sliver_shrunk |= a.max_cos > input_floor.max(b.max_cos);
         }
         verdict
     }
@@ -873,6 +937,48 @@ mod tests {
         let worse = tester.judge(&m, &[(v, DVec3::new(1.2, 1.1, 0.0))], &input);
         assert!(!worse.new_defect && !worse.keeps_quality() && !worse.improves(1.0));
         assert_eq!(m.positions(), &input[..]);
+    }
+
+    #[test]
+    fn a_sliver_of_the_input_keeps_half_its_angle() {
+        // A fan around vertex 0 whose first face is a sliver in the input
+        // (8 degrees at the centre). The centre has since moved where its
+        // last face is at 0.9 degrees and the sliver at 4.6; the tried move
+        // opens the last face a little (the star's smallest angle grows)
+        // but closes the sliver to 4.0, under half its input angle.
+        let ring = [
+            (10.0, 0.0),
+            (10.0, 1.4),
+            (0.0, 10.0),
+            (-10.0, 0.0),
+            (0.0, -10.0),
+        ];
+        let mut input = vec![DVec3::ZERO];
+        input.extend(ring.iter().map(|&(x, y)| DVec3::new(x, y, 0.0)));
+        let faces: Vec<[u32; 3]> = (1..=5).map(|i| [0, i, i % 5 + 1]).collect();
+        let m = Mesh::from_polygons(input.clone(), &faces).expect("fan");
+        let t = Topology::build(&m);
+        let mut current = input.clone();
+        current[0] = DVec3::new(1.75, -8.0, 0.0);
+        let tried = [(0, DVec3::new(-0.25, -9.4, 0.0))];
+        let cos_goal = 20f64.to_radians().cos();
+        let cos_guard = 10f64.to_radians().cos();
+        let mut plain = MoveTester::default();
+        plain.begin(&m, &t, &[0], &current, &input, cos_goal);
+        let verdict = plain.judge(&m, &tried, &current);
+        assert!(verdict.max_cos.1 < verdict.max_cos.0 && verdict.improves(1.0));
+        let mut guarded = MoveTester::default().guarding(cos_guard);
+        guarded.begin(&m, &t, &[0], &current, &input, cos_goal);
+        let verdict = guarded.judge(&m, &tried, &current);
+        assert!(verdict.input_sliver_shrunk && !verdict.improves(1.0));
+        // Closing it only to 4.6 degrees' neighbourhood is allowed: a
+        // smaller step the same way stays above half its input angle.
+        let half_way = [(0, DVec3::new(1.45, -8.2, 0.0))];
+        let verdict = guarded.judge(&m, &half_way, &current);
+        let sliver = min_angle_cos(half_way[0].1, input[1], input[2])
+            .acos()
+            .to_degrees();
+        assert!(sliver > 4.0 && !verdict.input_sliver_shrunk, "{sliver}");
     }
 
     #[test]

@@ -21,7 +21,13 @@
 //! face becomes inverted relative to the input, no quad becomes twisted,
 //! no quad corner divided by its split opens beyond 160° (or beyond its
 //! angle before, if wider), and either a defect goes away or the smallest
-//! split-triangle angle of `v`'s faces grows. The first candidate that
+//! split-triangle angle of `v`'s faces grows (or their summed shortfall
+//! from the threshold shrinks, no angle falling below the mesh's smallest
+//! when the fix began). A move that only improves angles may not close a
+//! face the input already had below the sliver floor to less than half
+//! its input angle (`local::INPUT_SLIVER_KEEP`): the sliver fix does not
+//! guard such faces, and the faces of a marching-cubes mesh across thick
+//! slices are needles of a few degrees. The first candidate that
 //! leaves no defect and no angle below the threshold is taken; otherwise
 //! the best (fewest inverted faces, then fewest twisted quads, then the
 //! largest smallest angle); otherwise `v` stays. A vertex stuck in one
@@ -117,6 +123,16 @@ impl Relocator {
             min_normal_cos,
             tester: MoveTester::bounded(bound),
             ..Relocator::default()
+        }
+    }
+
+    /// The same relocator, refusing the angle-only moves that take a face
+    /// the input already had sharper than the angle of cosine `cos_guard`
+    /// below it and below where the face was ([`MoveTester::guarding`]).
+    pub fn guarding(self, cos_guard: f64) -> Relocator {
+        Relocator {
+            tester: self.tester.guarding(cos_guard),
+            ..self
         }
     }
 
@@ -273,6 +289,9 @@ pub fn fix_sharp_angles(
     min_normal_cos: f64,
 ) -> SharpAngleStats {
     let cos_limit = sharp_angle_deg.to_radians().cos();
+    let cos_guard = (super::SLIVER_FRACTION * sharp_angle_deg)
+        .to_radians()
+        .cos();
     let p: &[DVec3] = positions;
     // Faces that need work, with the cosine of their smallest angle.
     let bad_faces: Vec<(u32, f64)> = (0..mesh.num_faces() as u32)
@@ -310,7 +329,7 @@ pub fn fix_sharp_angles(
                 .par_iter()
                 .with_min_len(64)
                 .map_init(
-                    || Relocator::new(min_normal_cos, bound),
+                    || Relocator::new(min_normal_cos, bound).guarding(cos_guard),
                     |r, &v| {
                         let thorough = previously_stuck.binary_search(&v).is_ok();
                         r.relocate(
