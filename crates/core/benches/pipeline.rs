@@ -15,6 +15,7 @@
 
 use meshsmooth_core::io::{Format, ReadLimits, read};
 use meshsmooth_core::mesh::Mesh;
+use meshsmooth_core::report::QualityReport;
 use meshsmooth_core::{NoProgress, Params, run, shapes};
 use std::path::Path;
 use std::process::Command;
@@ -41,6 +42,16 @@ fn cpu_seconds() -> Option<f64> {
     Some((utime + stime) / 100.0)
 }
 
+/// A report's stage timings, in milliseconds, as `name ms, ...`.
+fn stage_times(report: &QualityReport) -> String {
+    let stages: Vec<String> = report
+        .timings
+        .iter()
+        .map(|s| format!("{} {:.0}", s.stage, s.ms))
+        .collect();
+    stages.join(", ")
+}
+
 /// One timed run at `radius`: prints its figures, returns (wall, CPU)
 /// seconds. Peak memory is printed for a process's first run only (later
 /// runs' peaks include what the earlier ones left to the allocator).
@@ -62,12 +73,6 @@ fn one(radius: f64, first: bool) -> (f64, f64) {
     let cpu = cpu_seconds().unwrap_or(0.0) - cpu_before;
     let n = mesh.num_vertices();
     let peak = peak_rss_bytes().unwrap_or(0);
-    let stages: Vec<String> = out
-        .report
-        .timings
-        .iter()
-        .map(|s| format!("{} {:.0}", s.stage, s.ms))
-        .collect();
     let memory = if first {
         format!(
             "peak RSS {:.0} MB = {:.0} B/vertex (mesh generation {gen_ms:.0} ms, RSS before run {:.0} MB)",
@@ -83,7 +88,7 @@ fn one(radius: f64, first: bool) -> (f64, f64) {
         wall * 1e6 / n as f64,
         shapes::rms_distance(&sphere, &out.positions),
     );
-    println!("        stages (ms): {}", stages.join(", "));
+    println!("        stages (ms): {}", stage_times(&out.report));
     if let Some(w) = &out.report.wang_yu {
         let f = &w.adaptive_fits;
         println!(
@@ -107,16 +112,10 @@ fn one_file(name: &str, mesh: &Mesh) -> f64 {
     .expect("run");
     let wall = t.elapsed().as_secs_f64();
     let n = mesh.num_vertices();
-    let stages: Vec<String> = out
-        .report
-        .timings
-        .iter()
-        .map(|s| format!("{} {:.0}", s.stage, s.ms))
-        .collect();
     println!(
         "{name}  vertices {n:>8}  wall {wall:>6.3} s  ({:.2} us/vertex)  stages (ms): {}",
         wall * 1e6 / n as f64,
-        stages.join(", ")
+        stage_times(&out.report)
     );
     wall
 }
