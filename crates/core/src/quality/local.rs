@@ -342,7 +342,9 @@ impl Verdict {
     /// face newly short of the goal and no angle below `cos_floor`'s (the
     /// mesh's smallest angle when the fix began). The last lets a straight
     /// row of slivers shift as a whole, which no single move can do while
-    /// every move must grow the local smallest angle.
+    /// every move must grow the local smallest angle. Only the first may
+    /// close a sliver of the input below its floor
+    /// ([`Verdict::input_sliver_shrunk`]).
     pub fn improves(&self, cos_floor: f64) -> bool {
         if self.new_defect || self.inverted.1 > self.inverted.0 || self.twisted.1 > self.twisted.0 {
             return false;
