@@ -20,7 +20,8 @@ long along the grid's third axis: a thick-slice acquisition (1 x 1 x 2.5 mm),
 which many clinical segmentations are; `gm_thick` the GM map at 1 x 1 x 2.5 mm
 (half its spacing in-plane), a thin folded sheet cut in thick slices;
 `wm_axial` the WM crop's map at 0.5 x 0.5 x 3 mm, a clinical axial series
-(voxels six times as deep as wide). The
+(voxels six times as deep as wide); `wm_4mm` at 1 x 1 x 4 mm, whose side
+walls split at 14 degrees, just above the sliver floor. The
 meshes are made here the way the data folder's were: voxel quads with every
 boundary face of the mask (corners shared, non-manifold where voxels touch
 along an edge or at a corner), marching cubes by scikit-image at level 0.5 on
@@ -59,6 +60,7 @@ MAPS = {
     "wm_thick": ("mni152_wm_crop48_1mm_prob.nii.gz", 3, (1.0, 1.0, 2.5)),
     "gm_thick": ("mni152_gm_2mm_prob.nii.gz", None, (0.5, 0.5, 1.25)),
     "wm_axial": ("mni152_wm_crop48_1mm_prob.nii.gz", 3, (0.5, 0.5, 3.0)),
+    "wm_4mm": ("mni152_wm_crop48_1mm_prob.nii.gz", 3, (1.0, 1.0, 4.0)),
 }
 LEVEL = 127.5
 
