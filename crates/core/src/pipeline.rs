@@ -825,13 +825,16 @@ pub fn run(
         volume_warned,
     } = smoothed;
     // The smoothing stage's curvature is the final stage's when no quality
-    // fix moves a vertex in between.
-    let unmoved_curvature = curvature.filter(|_| !params.quality.enabled);
+    // fix moves a vertex in between (a smooth surface often needs none).
+    let mut unmoved_curvature = curvature;
     check(cancel)?;
     if params.quality.enabled {
-        timings.time(Stage::Quality, || {
+        let moved = timings.time(Stage::Quality, || {
             quality_stage(&run, &mut positions, &mut report)
         });
+        if moved {
+            unmoved_curvature = None;
+        }
     }
     check(cancel)?;
     if let Some(summary) = report.wang_yu.as_mut() {
@@ -973,13 +976,14 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
 /// The quality fixes (paper section 2.4) on `positions`, then, after a
 /// Wang-Yu run that restored the volume, a second small restoration kept
 /// only if it folds or twists no face.
-fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport) {
+fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport) -> bool {
     let Run {
         mesh, topo, params, ..
     } = *run;
     let input = mesh.positions();
     let _s = tracing::info_span!("quality").entered();
     run.progress.update(Stage::Quality, 0.0);
+    let before = positions.to_vec();
     report.quality_fixes = Some(improve(
         mesh,
         topo,
@@ -990,8 +994,11 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
         params.min_normal_cos(),
     ));
     // The fixes slide vertices over their fitted quadrics, which shifts
-    // the volume a little.
-    if let Some(summary) = report.wang_yu.as_mut()
+    // the volume a little; when they moved none there is nothing to give
+    // back.
+    let fixed = positions != &before[..];
+    if fixed
+        && let Some(summary) = report.wang_yu.as_mut()
         && let Some(parts) = run.volume_parts
         && summary.volume_offset != 0.0
     {
@@ -1007,6 +1014,7 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
     }
     run.quality_fidelity.apply(positions);
     run.progress.update(Stage::Quality, 1.0);
+    positions != &before[..]
 }
 
 /// Rounds of the volume restoration after the quality fixes
@@ -1241,6 +1249,39 @@ mod tests {
             .as_ref()
             .expect("final measures");
         assert_eq!(last.inverted_faces, 0);
+    }
+
+    #[test]
+    fn the_output_curvature_is_that_of_the_output_positions() {
+        // The smoothing stage's curvature is reused when the quality fixes
+        // move nothing (then nor does the volume's re-restoration); either
+        // way the per-vertex curvature is the output's own.
+        let (_, sphere) = shapes::voxel_sphere(10.0);
+        let (_, ellipsoid) = shapes::mc_ellipsoid(12.0, 8.0, 5.0);
+        let params = Params::default();
+        let mut reused = 0;
+        for mesh in [sphere, ellipsoid, shapes::edge_touching_blocks()] {
+            let out =
+                run(&mesh, &params, &crate::NoProgress, &AtomicBool::new(false)).expect("run");
+            let topo = Topology::build(&mesh);
+            let fresh = stage_curvature(&mesh, &topo, &out.positions, &params);
+            let h: Vec<f64> = fresh.iter().map(|c| c.0).collect();
+            let k: Vec<f64> = fresh.iter().map(|c| c.1).collect();
+            assert_eq!(out.per_vertex.mean_curvature, h);
+            assert_eq!(out.per_vertex.gaussian_curvature, k);
+            let fixes = out.report.quality_fixes.expect("the fixes ran");
+            reused += usize::from(
+                fixes.sharp_angles.moves == 0
+                    && fixes.short_edges.lengthened == 0
+                    && fixes.twisted.found == 0
+                    && fixes.inverted.found == 0
+                    && fixes.slivers.found == 0,
+            );
+        }
+        assert!(
+            reused > 0 && reused < 3,
+            "both cases: {reused} of 3 unmoved"
+        );
     }
 
     /// A cube of 4 x 4 x 4 voxels, its topology, movable vertices and
