@@ -123,19 +123,9 @@ fn one_file(name: &str, mesh: &Mesh) -> f64 {
 /// The mesh file at `path`, read as the service reads an upload of its
 /// extension.
 fn read_file(path: &Path) -> Mesh {
-    let ext = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
-    let format = match ext.as_str() {
-        "obj" => Format::Obj,
-        "ply" => Format::Ply,
-        "stl" => Format::Stl,
-        "gltf" => Format::Gltf,
-        "glb" => Format::Glb,
-        _ => panic!("{}: not a mesh file extension", path.display()),
-    };
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+    let format = Format::from_file_name(name)
+        .unwrap_or_else(|| panic!("{}: not a mesh file extension", path.display()));
     let bytes = std::fs::read(path).expect("read the mesh file");
     read(&bytes, format, &ReadLimits::default())
         .expect("parse the mesh file")

@@ -974,8 +974,9 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
 }
 
 /// The quality fixes (paper section 2.4) on `positions`, then, after a
-/// Wang-Yu run that restored the volume, a second small restoration kept
-/// only if it folds or twists no face.
+/// Wang-Yu run that restored the volume and when a fix moved a vertex, a
+/// second small restoration kept only if it folds or twists no face.
+/// Whether any vertex moved.
 fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport) -> bool {
     let Run {
         mesh, topo, params, ..
@@ -1014,7 +1015,7 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
     }
     run.quality_fidelity.apply(positions);
     run.progress.update(Stage::Quality, 1.0);
-    positions != &before[..]
+    fixed || positions != &before[..]
 }
 
 /// Rounds of the volume restoration after the quality fixes
