@@ -3,7 +3,7 @@ folder resampled on seeded shifted and rotated grids, thresholded, meshed as
 voxel quads and as marching cubes, smoothed by meshsmooth and by the peers
 over a sweep of their settings, and measured against the same truth.
 
-    python3 eval/real_placements.py [--data DIR] [--placements N] [--only NAME,...] [--params FILE.json] [--kinds vox,mc]
+    python3 eval/real_placements.py [--data DIR] [--placements N] [--only NAME,...] [--params FILE.json] [--kinds vox,mc] [--level L]
 
 A mask is where the trilinearly interpolated map exceeds 127.5 at a voxel
 centre, and the truth is the surface where it equals 127.5 (meshmetrics.Truth),
@@ -26,7 +26,9 @@ meshes are made here the way the data folder's were: voxel quads with every
 boundary face of the mask (corners shared, non-manifold where voxels touch
 along an edge or at a corner), marching cubes by scikit-image at level 0.5 on
 the mask. The WM crop is measured over the vertices at least 3
-voxels inside its crop, the GM map over all.
+voxels inside its crop, the GM map over all. `--level` thresholds the map
+elsewhere than at 127.5, with the truth at the same level: a segmentation
+drawn thicker (64) or thinner (191) than the data folder's masks.
 
 For each mesh the table gives meshsmooth at its defaults and the best truth
 RMS any peer setting reaches on that same mesh (and which setting), then the
@@ -84,11 +86,11 @@ def placement(seed, rotate=True):
     return (rot if rotate else np.eye(3)), rng.uniform(0.0, 1.0, 3)
 
 
-def resampled_mask(data, rot, offset, spacing=(1.0, 1.0, 1.0)):
+def resampled_mask(data, rot, offset, spacing=(1.0, 1.0, 1.0), level=LEVEL):
     """The mask of `data`'s trilinear map on the grid rotated by `rot`,
     shifted by `offset` (voxels) about the volume's centre and of `spacing`
-    (in `data`'s voxels, per grid axis), and the map from that grid's voxel
-    coordinates to `data`'s."""
+    (in `data`'s voxels, per grid axis), thresholded at `level`, and the map
+    from that grid's voxel coordinates to `data`'s."""
     from scipy.ndimage import map_coordinates
 
     spacing = np.asarray(spacing, dtype=float)
@@ -102,7 +104,7 @@ def resampled_mask(data, rot, offset, spacing=(1.0, 1.0, 1.0)):
 
     grid = np.stack(np.meshgrid(*[np.arange(n) for n in extent], indexing="ij"), -1).reshape(-1, 3)
     values = map_coordinates(data, to_data(grid.astype(float)).T, order=1, cval=0.0)
-    return (values > LEVEL).reshape(tuple(extent)), to_data
+    return (values > level).reshape(tuple(extent)), to_data
 
 
 def voxel_quads(mask):
@@ -199,6 +201,12 @@ def main():
         action="store_true",
         help="sub-voxel offsets only, the grid's axes kept (marching-cubes grids are recognised only so)",
     )
+    ap.add_argument(
+        "--level",
+        type=float,
+        default=LEVEL,
+        help="the threshold of the mask and the level of its truth (0-255; default 127.5, the data folder's masks)",
+    )
     ap.add_argument("--dump", help="also write each placement's meshes to this folder, as NAME_SEED_KIND.obj")
     args = ap.parse_args()
     import nibabel as nib
@@ -212,14 +220,14 @@ def main():
         path = os.path.join(args.data, prob)
         img = nib.load(path)
         data = np.asarray(img.dataobj, dtype=np.float64)
-        truth = mm.Truth(path, level=LEVEL)
+        truth = mm.Truth(path, level=args.level)
         rows = {"vox": [], "mc": []}
         print(f"\n## {name}: truth RMS in mm (ours, best peer setting, ratio), flipped/twisted/min angle of ours")
         print("| placement | mesh | vertices | input | meshsmooth | best peer | ratio | setting | ours flipped/twisted/min angle/max move (voxels of the mesh) |")
         print("|---|---|---|---|---|---|---|---|---|")
         for seed in range(args.placements):
             rot, offset = placement(seed, not args.no_rotation)
-            mask, to_data = resampled_mask(data, rot, offset, spacing)
+            mask, to_data = resampled_mask(data, rot, offset, spacing, args.level)
             qv, qf = voxel_quads(mask)
             for kind in ("vox", "mc"):
                 if kind not in kinds:
