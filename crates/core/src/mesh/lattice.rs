@@ -10,6 +10,8 @@
 //!   one coordinate of each vertex is an odd multiple of it
 //!   ([`is_marching_cubes_lattice`], in any orientation: an image with an
 //!   oblique affine puts its grid's axes anywhere in world coordinates).
+//!   Lewiner's variant adds a vertex at the centre of some cubes, all three
+//!   coordinates odd; it sits on no lattice edge.
 
 use super::Topology;
 use glam::{DMat3, DVec3};
@@ -94,10 +96,14 @@ pub(crate) fn along_axis(frame: &[DVec3; 3], d: DVec3) -> Option<usize> {
         .position(|a| a.dot(d).abs() >= PARALLEL_COS * len)
 }
 
-/// The share of the vertices that must sit at lattice-edge midpoints for
-/// a mesh to count as a marching-cubes mesh of a mask: a crop's cut faces
-/// and a file's rounding may put a few elsewhere, a smoothed or decimated
-/// mesh has almost none there.
+/// The share of the vertices that must sit at lattice-edge midpoints (or,
+/// fewer of them than at midpoints, at cube centres) for a mesh to count
+/// as a marching-cubes mesh of a mask: a crop's cut faces and a file's
+/// rounding may put a few elsewhere, a smoothed or decimated mesh has
+/// almost none there. Lewiner's marching cubes (scikit-image's) resolves a
+/// cube whose faces are ambiguous with a vertex at the cube's centre: on a
+/// thin sheet's mask, where voxels touch along edges everywhere, a few
+/// percent of its vertices.
 const MIDPOINT_SHARE: f64 = 0.99;
 
 /// How far from the half-spacing grid a coordinate may lie, in half
@@ -300,16 +306,32 @@ fn grid_in_frame(
     let (grid, bits, flip) = SPAN_ROUNDINGS.into_iter().find_map(|rounding| {
         let grid = axis_grids(positions, frame, rounding)?;
         let bits = grid_parities(positions, frame, &grid, tolerance);
-        // Which parity is the voxel centres' on each axis is not known:
-        // try the eight choices; a midpoint has exactly one coordinate
-        // off them.
-        let flip = (0u8..8).find(|&flip| {
-            let midpoints = bits
-                .iter()
-                .filter(|b| b.is_some_and(|b| (b ^ flip).count_ones() == 1))
-                .count();
-            midpoints as f64 >= MIDPOINT_SHARE * n as f64
-        })?;
+        // Which parity is the voxel centres' on each axis is not known: of
+        // the eight choices, the one that puts the most vertices at
+        // midpoints (exactly one coordinate off the centres; a cube's
+        // centre has all three). Flipping two axes also leaves the
+        // midpoints along them, and makes the third axis's look like cube
+        // centres, so the count of midpoints, not of both, decides; it
+        // decides right while the centres are fewer than the midpoints
+        // along any one axis (a few percent against a third).
+        let mut parities = [0usize; 8];
+        for &b in bits.iter().flatten() {
+            parities[usize::from(b)] += 1;
+        }
+        let counts = |flip: u8| {
+            let off = |k: u32| -> usize {
+                (0u8..8)
+                    .filter(|b| (b ^ flip).count_ones() == k)
+                    .map(|b| parities[usize::from(b)])
+                    .sum()
+            };
+            (off(1), off(3))
+        };
+        let flip = (0u8..8).max_by_key(|&flip| (counts(flip).0, std::cmp::Reverse(flip)))?;
+        let (midpoints, centres) = counts(flip);
+        if centres > midpoints || ((midpoints + centres) as f64) < MIDPOINT_SHARE * n as f64 {
+            return None;
+        }
         Some((grid, bits, flip))
     })?;
     let spacing = DVec3::new(2.0 * grid[0].1, 2.0 * grid[1].1, 2.0 * grid[2].1);
@@ -656,6 +678,58 @@ mod tests {
                 sphere.inside(*p - 0.5 * along),
                 sphere.inside(*p + 0.5 * along)
             );
+        }
+    }
+
+    /// `mc` with every `nth` triangle fanned from the centre of the cube
+    /// it lies in, as Lewiner's marching cubes resolves an ambiguous cube,
+    /// and the count of vertices so added.
+    fn with_cube_centres(mc: &crate::mesh::Mesh, nth: usize) -> (crate::mesh::Mesh, usize) {
+        let mut positions = mc.positions().to_vec();
+        let mut faces: Vec<Vec<u32>> = Vec::new();
+        for (i, f) in mc.faces().enumerate() {
+            if i % nth != 0 {
+                faces.push(f.to_vec());
+                continue;
+            }
+            let centroid = f.iter().map(|&v| positions[v as usize]).sum::<DVec3>() / 3.0;
+            let centre = positions.len() as u32;
+            // The shapes' voxel centres sit at half-integers, their cubes'
+            // centres at integers.
+            positions.push(centroid.round());
+            faces.extend((0..3).map(|k| vec![f[k], f[(k + 1) % 3], centre]));
+        }
+        let added = positions.len() - mc.num_vertices();
+        let mesh = crate::mesh::Mesh::from_polygons(positions, &faces).unwrap();
+        (mesh, added)
+    }
+
+    #[test]
+    fn a_lewiner_marching_cubes_mesh_with_cube_centres_is_found() {
+        // A thin sheet's mask puts a few percent of Lewiner's vertices at
+        // cube centres; the midpoints keep their edges, the centres get none.
+        let (_, mc) = shapes::mc_sphere(6.0);
+        let (lewiner, added) = with_cube_centres(&mc, 8);
+        let share = added as f64 / lewiner.num_vertices() as f64;
+        assert!(
+            share > 1.0 - MIDPOINT_SHARE,
+            "the fixture has {share} at centres"
+        );
+        let plain = {
+            let topo = Topology::build(&mc);
+            marching_cubes_grid(&topo, mc.positions()).expect("a marching-cubes mesh")
+        };
+        let rot = glam::DQuat::from_euler(glam::EulerRot::XYZ, 0.3, -0.7, 1.1);
+        for turn in [glam::DQuat::IDENTITY, rot] {
+            let (topo, placed) = mapped(&lewiner, |p| turn * p);
+            let grid = marching_cubes_grid(&topo, &placed).expect("a marching-cubes mesh");
+            let (midpoints, centres) = grid.edges.split_at(mc.num_vertices());
+            assert!(centres.iter().all(Option::is_none));
+            for (edge, expected) in midpoints.iter().zip(&plain.edges) {
+                let (edge, expected) = (edge.unwrap(), expected.unwrap());
+                let along = turn * plain.direction(expected);
+                assert!(grid.direction(edge).dot(along).abs() > 1.0 - 1e-9);
+            }
         }
     }
 
