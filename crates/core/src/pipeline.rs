@@ -27,7 +27,7 @@ use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
 use crate::smoothing::staircase::{compensate_shrinkage, relax_staircase};
 use crate::smoothing::taubin::{LOWPASS_LAMBDA, LOWPASS_MU, taubin_in_place};
-use crate::smoothing::volume::{VolumeParts, restore_volume};
+use crate::smoothing::volume::{Restored, VolumeParts, restore_volume};
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -316,14 +316,12 @@ struct WangYuRun {
     initial_fits: FitStats,
     /// Fit statistics of the adaptive passes.
     adaptive_fits: FitStats,
-    /// Offset along the normals applied to restore the volume (0 if none).
-    volume_offset: f64,
+    /// What the volume restoration did ([`Restored`]; all 0 when it did
+    /// not run).
+    volume: Restored,
     /// Relative volume change left when restoring the volume was asked for
     /// but refused (the offset needed was too large or did not converge).
     volume_not_restored: Option<f64>,
-    /// Relative change of the polygons' volume the restoration aimed at
-    /// ([`crate::smoothing::volume::Restored::aimed`]).
-    volume_target_change: f64,
 }
 
 /// Initial smoothing, labelling and adaptive smoothing with volume
@@ -391,10 +389,9 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
         })
     })?;
     timings.time(Stage::Adaptive, || lowpass_stage(run, &mut positions));
-    let (volume_offset, volume_not_restored, volume_target_change) = timings
-        .time(Stage::Adaptive, || {
-            restore_after_passes(run, &mut positions)
-        });
+    let (volume, volume_not_restored) = timings.time(Stage::Adaptive, || {
+        restore_after_passes(run, &mut positions)
+    });
     let curvature = timings.time(Stage::Report, || {
         stage_curvature(mesh, topo, &positions, params)
     });
@@ -407,9 +404,8 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
         ring,
         initial_fits,
         adaptive_fits,
-        volume_offset,
+        volume,
         volume_not_restored,
-        volume_target_change,
     })
 }
 
@@ -603,12 +599,11 @@ fn lowpass_stage(run: &Run, positions: &mut [DVec3]) {
 }
 
 /// Restores each part's enclosed volume after the adaptive passes when
-/// asked and the mesh is closed ([`restore_volume`]): the mean offset
-/// applied, the relative change left when some part's restoration was
-/// refused, and the relative change of the polygons' volume aimed at.
-fn restore_after_passes(run: &Run, positions: &mut [DVec3]) -> (f64, Option<f64>, f64) {
+/// asked and the mesh is closed ([`restore_volume`]): what it did, and the
+/// relative change left when some part's restoration was refused.
+fn restore_after_passes(run: &Run, positions: &mut [DVec3]) -> (Restored, Option<f64>) {
     let Some(parts) = run.volume_parts else {
-        return (0.0, None, 0.0);
+        return (Restored::default(), None);
     };
     let max_offset = MAX_VOLUME_OFFSET * mean_edge_length(run.mesh, positions);
     let restored = restore_volume(
@@ -629,7 +624,7 @@ fn restore_after_passes(run: &Run, positions: &mut [DVec3]) -> (f64, Option<f64>
         let target = run.mesh.signed_volume();
         (signed_volume(run.mesh, positions) - target) / target.abs()
     };
-    (restored.mean_offset, refused.then(change), restored.aimed)
+    (restored, refused.then(change))
 }
 
 /// The curvature a stage reports (and the run's per-vertex result): from
@@ -944,8 +939,8 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
         ring_size_histogram: ring_size_histogram(&r.ring),
         initial_fits: r.initial_fits.into(),
         adaptive_fits: r.adaptive_fits.into(),
-        volume_offset: r.volume_offset,
-        volume_target_change: r.volume_target_change,
+        volume_offset: r.volume.mean_offset,
+        volume_target_change: r.volume.aimed,
         fidelity_held_back: None,
         paired_triangles: run.paired_triangles as u64,
         input_grid: if run.lattice {
@@ -965,11 +960,20 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
             100.0 * change
         ));
     }
+    let collapsed = r.volume.collapsed;
+    if collapsed.abs() > VOLUME_WARNING {
+        report.warnings.push(format!(
+            "{:+.2}% of the enclosed volume could not be restored: it went with parts \
+             that kept under half their volume (fragments or holes a voxel or two \
+             across, thinner than the smoothing's reach), which are left as smoothed",
+            100.0 * collapsed
+        ));
+    }
     Smoothed {
         positions: r.adaptive,
         labels: r.labels.iter().map(|&l| l as u8).collect(),
         curvature: Some(r.curvature),
-        volume_warned: r.volume_not_restored.is_some(),
+        volume_warned: r.volume_not_restored.is_some() || collapsed.abs() > VOLUME_WARNING,
     }
 }
 
