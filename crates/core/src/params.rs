@@ -250,10 +250,11 @@ pub struct Params {
     /// cavities each get their own). On a voxel lattice the smooth surface
     /// through the vertices gets the mask's volume, so the flat faces of a
     /// thin convex part enclose slightly less (at most 1.5%; the report's
-    /// `wang_yu.volume_target_change`). A connected part that keeps under
-    /// half its volume through the smoothing (a fragment or a hole a voxel
-    /// or two across, which its mask overstates) is left as smoothed, and
-    /// a warning says so when that is more than 0.5% of the volume.
+    /// `wang_yu.volume_target_change`). A connected part that collapses
+    /// (a fragment or a hole a voxel or two across, which its mask
+    /// overstates, whose loss no offset of half an edge gives back) is left
+    /// as smoothed, and a warning says so when that is more than 0.5% of
+    /// the volume.
     /// Default true.
     pub preserve_volume: bool,
     /// Join vertices that share a position before smoothing (glTF seams,

@@ -27,7 +27,7 @@ use crate::smoothing::label::{Label, label};
 use crate::smoothing::project::FitStats;
 use crate::smoothing::staircase::{compensate_shrinkage, relax_staircase};
 use crate::smoothing::taubin::{LOWPASS_LAMBDA, LOWPASS_MU, taubin_in_place};
-use crate::smoothing::volume::{Restored, VolumeParts, restore_volume};
+use crate::smoothing::volume::{MAX_VOLUME_OFFSET, Restored, VolumeParts, restore_volume};
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -278,11 +278,6 @@ impl Timings {
             .collect()
     }
 }
-
-/// A restoration offset larger than this fraction of the mean edge length
-/// after the adaptive passes is no smoothing bias to undo: the volume is
-/// left as it is (and a warning says so).
-const MAX_VOLUME_OFFSET: f64 = 0.5;
 
 /// After the quality fixes, which slide vertices over their fits, the
 /// volume is restored again by an offset of at most this fraction of the
@@ -964,8 +959,9 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
     if collapsed.abs() > VOLUME_WARNING {
         report.warnings.push(format!(
             "{:+.2}% of the enclosed volume could not be restored: it went with parts \
-             that kept under half their volume (fragments or holes a voxel or two \
-             across, thinner than the smoothing's reach), which are left as smoothed",
+             that collapsed (fragments or holes a voxel or two across, thinner than the \
+             smoothing's reach, whose loss no offset of half an edge gives back), which \
+             are left as smoothed",
             100.0 * collapsed
         ));
     }

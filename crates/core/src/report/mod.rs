@@ -355,8 +355,8 @@ pub struct WangYuSummary {
     /// surface through the output's vertices gets the mask's volume and
     /// its flat faces enclose a little less where it is convex (at most
     /// 1.5% less, on tubes a few voxels across), and where parts collapsed:
-    /// a fragment or a hole that kept under half its volume is left as
-    /// smoothed, and its change counts here. Since schema 2.3.
+    /// a fragment or a hole whose loss no offset of half an edge gives back
+    /// is left as smoothed, and its change counts here. Since schema 2.3.
     #[serde(default)]
     pub volume_target_change: f64,
     /// Vertices the fidelity bound (`max_displacement`) held back at least

@@ -46,19 +46,19 @@ use rayon::prelude::*;
 /// stay outside the smooth surface by the rest of the bulge.
 pub const BULGE_TOLERANCE: f64 = 0.015;
 
-/// A connected component whose signed volume has fallen below this share
-/// of its input volume by the time of the restoration has collapsed: a
-/// fragment or a hole a voxel or two across, thinner than the fits and the
-/// relaxation reach, whose mask overstates it (the truth of a feature
-/// sampled at its peak is thinner than the voxel it lit). Its loss is no
-/// bias of the fits, so it neither takes an offset nor counts toward its
-/// part's target: counted, a few collapsed holes would push every other
-/// cavity's surface out to make up their volume. The thinnest shapes the
-/// smoothing keeps (a tube 3 voxels across) lose a fifth of their volume
-/// before the restoration, well above this.
-pub const COLLAPSED_SHARE: f64 = 0.5;
+/// A restoration offset larger than this fraction of the mean edge length
+/// is no smoothing bias to undo. A part that needs more after the passes is
+/// left as it is (the pipeline's first restoration), and a connected
+/// component that would need more on its own has collapsed: a fragment or
+/// a hole a voxel or two across, thinner than the fits and the relaxation
+/// reach, whose mask overstates it (the truth of a feature sampled at its
+/// peak is thinner than the voxel it lit). A collapsed component neither
+/// takes an offset nor counts toward its part's target: counted, a few
+/// collapsed holes would push every other cavity's surface out to make up
+/// their volume. A rod two voxels across still comes back within it.
+pub const MAX_VOLUME_OFFSET: f64 = 0.5;
 
-/// The part of a vertex whose component collapsed ([`COLLAPSED_SHARE`]):
+/// The part of a vertex whose component collapsed ([`MAX_VOLUME_OFFSET`]):
 /// in no part, never moved by the restoration.
 const NO_PART: u32 = u32::MAX;
 
@@ -76,6 +76,9 @@ pub struct VolumeParts {
     component: Vec<u32>,
     /// Each component's signed volume at the input positions.
     component_volumes: Vec<f64>,
+    /// The offset beyond which a component has collapsed
+    /// ([`MAX_VOLUME_OFFSET`] of the input's mean edge length).
+    collapse_offset: f64,
     /// Whether the smooth surface through the vertices, rather than their
     /// polygons, gets each part's input volume back (within
     /// [`BULGE_TOLERANCE`]).
@@ -92,7 +95,7 @@ pub struct Restored {
     /// relative to the magnitude of the whole input's volume.
     pub left: f64,
     /// The signed volume change the collapsed components
-    /// ([`COLLAPSED_SHARE`]) hold, left as they are, relative to the
+    /// ([`MAX_VOLUME_OFFSET`]) hold, left as they are, relative to the
     /// magnitude of the whole input's volume.
     pub collapsed: f64,
     /// The change of the polygons' volume the restoration aimed at,
@@ -120,26 +123,30 @@ impl VolumeParts {
             targets,
             component,
             component_volumes,
+            collapse_offset: MAX_VOLUME_OFFSET * mesh.mean_edge_length(),
             smooth_surface: false,
         }
     }
 
     /// These parts less the components that have collapsed at `positions`
-    /// ([`COLLAPSED_SHARE`]), with their parts' targets reduced by the
+    /// (whose volume change over their area at `positions` exceeds the
+    /// collapse offset, or whose volume changed sign), with their parts' targets reduced by the
     /// collapsed components' input volumes, and the signed volume change
     /// the collapsed components hold; `None` when none collapsed.
     fn without_collapsed(&self, mesh: &Mesh, positions: &[DVec3]) -> Option<(VolumeParts, f64)> {
-        let now = part_volumes(
-            mesh,
-            positions,
-            &self.component,
-            self.component_volumes.len(),
-        );
-        let collapsed: Vec<bool> = self
-            .component_volumes
-            .iter()
-            .zip(&now)
-            .map(|(&input, &v)| v / input < COLLAPSED_SHARE)
+        let count = self.component_volumes.len();
+        let now = part_volumes(mesh, positions, &self.component, count);
+        let face_area: Vec<f64> = (0..mesh.num_faces())
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|f| crate::mesh::vector_area(mesh.face(f), positions).length())
+            .collect();
+        let area = sum_by_part(mesh, &self.component, &face_area, count);
+        let collapsed: Vec<bool> = (0..count)
+            .map(|c| {
+                let (input, v) = (self.component_volumes[c], now[c]);
+                v / input <= 0.0 || (input - v).abs() > self.collapse_offset * area[c]
+            })
             .collect();
         if !collapsed.iter().any(|&c| c) {
             return None;
@@ -250,6 +257,11 @@ pub fn restore_volume(
     max_offset: f64,
     accept: impl Fn(&[DVec3]) -> bool,
 ) -> Restored {
+    let face_area: Vec<f64> = (0..mesh.num_faces())
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|f| mesh.face_vector_area(f).length())
+        .collect();
     let whole = parts.total_target();
     let settled = parts.without_collapsed(mesh, positions);
     let collapsed = settled.as_ref().map_or(0.0, |s| s.1 / whole);
@@ -257,11 +269,6 @@ pub fn restore_volume(
     let count = parts.targets.len();
     let normals = vertex_normals(mesh, topo, positions);
     let base: Vec<DVec3> = positions.to_vec();
-    let face_area: Vec<f64> = (0..mesh.num_faces())
-        .into_par_iter()
-        .with_min_len(4096)
-        .map(|f| mesh.face_vector_area(f).length())
-        .collect();
     let area = sum_by_part(mesh, &parts.part_of, &face_area, count);
     drop(face_area);
     let current = parts.volumes(mesh, positions);
