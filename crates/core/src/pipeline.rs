@@ -956,7 +956,8 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
         ));
     }
     let collapsed = r.volume.collapsed;
-    if collapsed.abs() > VOLUME_WARNING {
+    let collapse_warned = collapsed.abs() > VOLUME_WARNING;
+    if collapse_warned {
         report.warnings.push(format!(
             "{:+.2}% of the enclosed volume could not be restored: it went with parts \
              that collapsed (fragments or holes a voxel or two across, thinner than the \
@@ -969,7 +970,7 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
         positions: r.adaptive,
         labels: r.labels.iter().map(|&l| l as u8).collect(),
         curvature: Some(r.curvature),
-        volume_warned: r.volume_not_restored.is_some() || collapsed.abs() > VOLUME_WARNING,
+        volume_warned: r.volume_not_restored.is_some() || collapse_warned,
     }
 }
 

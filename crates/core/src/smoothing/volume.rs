@@ -129,10 +129,11 @@ impl VolumeParts {
     }
 
     /// These parts less the components that have collapsed at `positions`
-    /// (whose volume change over their area at `positions` exceeds the
-    /// collapse offset, or whose volume changed sign), with their parts' targets reduced by the
-    /// collapsed components' input volumes, and the signed volume change
-    /// the collapsed components hold; `None` when none collapsed.
+    /// (whose volume change over their area there exceeds the collapse
+    /// offset, or whose volume changed sign), with their parts' targets
+    /// reduced by the collapsed components' input volumes, and the signed
+    /// volume change the collapsed components hold; `None` when none
+    /// collapsed.
     fn without_collapsed(&self, mesh: &Mesh, positions: &[DVec3]) -> Option<(VolumeParts, f64)> {
         let count = self.component_volumes.len();
         let now = part_volumes(mesh, positions, &self.component, count);
@@ -521,13 +522,12 @@ mod tests {
         let topo = Topology::build(&mesh);
         let parts = VolumeParts::new(&mesh, &topo);
         assert_eq!(parts.targets.len(), 1, "two solids, one part");
+        let ball_faces = &faces[..ball.num_faces()];
         let ball_volume = |q: &[DVec3]| {
-            let ball_faces: Vec<Vec<u32>> = faces[..ball.num_faces()].to_vec();
-            let m = Mesh::from_polygons(q[..n].to_vec(), &ball_faces).unwrap();
+            let m = Mesh::from_polygons(q[..n].to_vec(), ball_faces).unwrap();
             signed_volume(&m, m.positions())
         };
         let input_ball = ball_volume(mesh.positions());
-        let bit_centre = far;
         let mut p: Vec<DVec3> = mesh
             .positions()
             .iter()
@@ -536,7 +536,7 @@ mod tests {
                 if v < n {
                     x * 0.99
                 } else {
-                    bit_centre + (x - bit_centre) * 0.1f64.cbrt()
+                    far + (x - far) * 0.1f64.cbrt()
                 }
             })
             .collect();
