@@ -19,9 +19,9 @@
 //! leaves none, so this fix moves nothing there.
 //!
 //! Order: sequential, clusters in ascending order of their smallest face
-//! (deterministic); a sweep rescans the faces still inverted; the fix
-//! stops after a sweep that changes nothing, when none is left, or after
-//! `max_sweeps`. Only interior and non-manifold vertices move.
+//! (deterministic); each sweep scans the whole mesh for inverted faces;
+//! the fix stops after a sweep that changes nothing, when none is left, or
+//! after `max_sweeps`. Only interior and non-manifold vertices move.
 
 use super::local::{MoveTester, Verdict, is_inverted};
 use crate::mesh::{Mesh, Topology, VertexKind};
@@ -112,7 +112,7 @@ pub(super) struct RetreatRule<'r> {
     /// Whether a tried move repairs the cluster.
     pub accept: &'r dyn Fn(&Verdict) -> bool,
     /// What is kept when no widening of the cluster gives an accepted
-    /// move, tried on the widest cluster; `None`: nothing.
+    /// move, tried from the narrowest cluster out; `None`: nothing.
     pub fallback: Option<&'r dyn Fn(&Verdict) -> bool>,
     /// How many times a cluster may take in one more ring of vertices.
     pub widenings: usize,
@@ -168,20 +168,32 @@ pub(super) fn retreat_sweeps(
                 stats.rejected += 1;
                 continue;
             }
-            let mut moved = None;
-            for widening in 0..=rule.widenings {
-                if widening > 0 && !cluster.widen(topo, positions, input) {
-                    break;
-                }
-                let (goal, accept) = (rule.cos_goal, rule.accept);
-                moved = cluster.retreat(mesh, topo, positions, input, &mut tester, goal, accept);
-                if moved.is_some() {
-                    break;
-                }
-            }
+            let (goal, widenings) = (rule.cos_goal, rule.widenings);
+            let mut moved = cluster.retreat_widening(
+                mesh,
+                topo,
+                positions,
+                input,
+                &mut tester,
+                goal,
+                rule.accept,
+                widenings,
+            );
             if let (None, Some(fallback)) = (moved, rule.fallback) {
-                let goal = rule.cos_goal;
-                moved = cluster.retreat(mesh, topo, positions, input, &mut tester, goal, fallback);
+                // From the narrowest cluster out again: a wider one gives up
+                // more smoothing, and its outer ring may refuse every
+                // fraction that the narrowest takes.
+                cluster.gather(mesh, topo, f, positions, input, |g| bad(g, positions));
+                moved = cluster.retreat_widening(
+                    mesh,
+                    topo,
+                    positions,
+                    input,
+                    &mut tester,
+                    goal,
+                    fallback,
+                    widenings,
+                );
             }
             match moved {
                 Some(n) => {
@@ -192,11 +204,13 @@ pub(super) fn retreat_sweeps(
                 None => stats.rejected += 1,
             }
         }
-        let p: &[DVec3] = positions;
-        left.retain(|&f| bad(f, p));
         if !changed {
             break;
         }
+        // Rescanned, not only the faces left: a fallback move may lift a
+        // cluster's smallest angle while closing a face next to it below
+        // the floor, which the next sweep then takes up.
+        left = faces_where(mesh, positions, rule);
     }
     stats.remaining = faces_where(mesh, positions, rule).len() as u64;
     stats
@@ -286,6 +300,32 @@ impl Cluster {
             }
         }
         self.vertices.len() > before
+    }
+
+    /// [`Cluster::retreat`], taking in one more ring of vertices after each
+    /// refusal, at most `widenings` times.
+    #[allow(clippy::too_many_arguments)]
+    fn retreat_widening(
+        &mut self,
+        mesh: &Mesh,
+        topo: &Topology,
+        positions: &mut [DVec3],
+        input: &[DVec3],
+        tester: &mut MoveTester,
+        cos_goal: f64,
+        accept: &dyn Fn(&Verdict) -> bool,
+        widenings: usize,
+    ) -> Option<usize> {
+        for widening in 0..=widenings {
+            if widening > 0 && !self.widen(topo, positions, input) {
+                break;
+            }
+            let moved = self.retreat(mesh, topo, positions, input, tester, cos_goal, accept);
+            if moved.is_some() {
+                return moved;
+            }
+        }
+        None
     }
 
     /// Tries the [`RETREATS`] of the cluster's vertices, smallest first,

@@ -13,12 +13,15 @@
 //! [`RETREATS`](super::inverted::RETREATS) that lifts every angle around it
 //! to the floor and makes nothing worse (see `MoveTester`), taking in one
 //! ring more at most [`SLIVER_WIDENINGS`] times; when none does, by the
-//! smallest that widens the cluster's smallest angle. Smoothing is given
+//! smallest that widens the cluster's smallest angle (tried from the
+//! narrowest cluster out, so a ring whose faces refuse every fraction does
+//! not block the fraction the sliver's own corners take). Smoothing is given
 //! up only where a sliver was ([`retreat_sweeps`], the fold fix's
 //! mechanism).
 //!
-//! Order: sequential, slivers in ascending face order (deterministic); a
-//! sweep rescans the slivers left; the fix stops after a sweep that
+//! Order: sequential, slivers in ascending face order (deterministic); each
+//! sweep scans the whole mesh again (a fallback move may close a face next
+//! to its cluster below the floor); the fix stops after a sweep that
 //! changes nothing, when none is left, or after `max_sweeps`. Only
 //! interior and non-manifold vertices move (a voxel mesh's side wall
 //! squeezed across a non-manifold edge opens only when that edge's ends go
@@ -171,6 +174,45 @@ mod tests {
                 assert_eq!(p[v], squeezed[v], "vertex {v} is not the edge's");
             }
         }
+    }
+
+    /// A patch of a real thick-slice segmentation as the sliver fix met
+    /// it: `v` lines hold a vertex's input position then its position after
+    /// the sharp-angle fix, `f` lines the quads. See `testdata/README.md`.
+    fn thick_slice_patch() -> (Mesh, Vec<DVec3>, Vec<DVec3>) {
+        let text = include_str!("testdata/thick_slice_sliver.txt");
+        let (mut input, mut squeezed, mut faces) = (Vec::new(), Vec::new(), Vec::new());
+        for line in text.lines() {
+            let mut words = line.split_whitespace();
+            match words.next() {
+                Some("v") => {
+                    let x: Vec<f64> = words.map(|w| w.parse().unwrap()).collect();
+                    input.push(DVec3::new(x[0], x[1], x[2]));
+                    squeezed.push(DVec3::new(x[3], x[4], x[5]));
+                }
+                Some("f") => faces.push(words.map(|w| w.parse().unwrap()).collect::<Vec<u32>>()),
+                _ => {}
+            }
+        }
+        let mesh = Mesh::from_polygons(input.clone(), &faces).unwrap();
+        (mesh, input, squeezed)
+    }
+
+    #[test]
+    fn a_sliver_whose_widened_cluster_refuses_every_fraction_still_opens() {
+        // Three corners of the sliver's quad are non-manifold (two sheets
+        // of a 1 x 1 x 2.5 mm mask touching along an edge). No fraction
+        // lifts it to the floor and every fraction of the widened cluster
+        // makes a defect, while a small step of its own corners widens it;
+        // the step closes a face next to it below the floor, which the
+        // next sweep finds and opens.
+        let (m, input, squeezed) = thick_slice_patch();
+        let t = Topology::build(&m);
+        assert!(min_split_angle(&m, &squeezed, None) < 5.0);
+        let mut p = squeezed.clone();
+        let stats = fix_slivers(&m, &t, &mut p, &input, None, 10.0, 10);
+        assert_eq!(stats.remaining, 0, "{stats:?}");
+        assert!(min_split_angle(&m, &p, None) >= 10.0);
     }
 
     #[test]
