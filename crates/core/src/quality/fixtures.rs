@@ -120,3 +120,29 @@ pub fn min_split_angle(mesh: &Mesh, positions: &[DVec3], faces: Option<&[usize]>
     }
     m
 }
+
+/// A patch of a real mesh as a fix met it (`testdata/`): each `v` line
+/// holds a vertex's input position, then its position when the fix began;
+/// each `f` line a face's corners (0-based). Returns the mesh (at the input
+/// positions), the input positions and the fix's starting positions.
+pub fn patch(text: &str) -> (Mesh, Vec<DVec3>, Vec<DVec3>) {
+    let (mut input, mut start, mut faces) = (Vec::new(), Vec::new(), Vec::new());
+    for line in text.lines() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => {
+                let x: Vec<f64> = words.map(|w| w.parse().expect("a number")).collect();
+                input.push(DVec3::new(x[0], x[1], x[2]));
+                start.push(DVec3::new(x[3], x[4], x[5]));
+            }
+            Some("f") => faces.push(
+                words
+                    .map(|w| w.parse().expect("a vertex index"))
+                    .collect::<Vec<u32>>(),
+            ),
+            _ => {}
+        }
+    }
+    let mesh = Mesh::from_polygons(input.clone(), &faces).expect("a valid patch");
+    (mesh, input, start)
+}

@@ -305,7 +305,7 @@ impl Cluster {
     /// [`Cluster::retreat`], taking in one more ring of vertices after each
     /// refusal, at most `widenings` times.
     #[allow(clippy::too_many_arguments)]
-    fn retreat_widening(
+    pub(super) fn retreat_widening(
         &mut self,
         mesh: &Mesh,
         topo: &Topology,

@@ -104,7 +104,7 @@ pub fn fix_slivers(
 mod tests {
     use super::*;
     use crate::mesh::VertexKind;
-    use crate::quality::fixtures::{at, grid, min_split_angle};
+    use crate::quality::fixtures::{at, grid, min_split_angle, patch};
     use crate::shapes::{VoxelMask, voxel_boundary_mesh};
     use glam::IVec3;
 
@@ -176,28 +176,6 @@ mod tests {
         }
     }
 
-    /// A patch of a real thick-slice segmentation as the sliver fix met
-    /// it: `v` lines hold a vertex's input position then its position after
-    /// the sharp-angle fix, `f` lines the quads. See `testdata/README.md`.
-    fn thick_slice_patch() -> (Mesh, Vec<DVec3>, Vec<DVec3>) {
-        let text = include_str!("testdata/thick_slice_sliver.txt");
-        let (mut input, mut squeezed, mut faces) = (Vec::new(), Vec::new(), Vec::new());
-        for line in text.lines() {
-            let mut words = line.split_whitespace();
-            match words.next() {
-                Some("v") => {
-                    let x: Vec<f64> = words.map(|w| w.parse().unwrap()).collect();
-                    input.push(DVec3::new(x[0], x[1], x[2]));
-                    squeezed.push(DVec3::new(x[3], x[4], x[5]));
-                }
-                Some("f") => faces.push(words.map(|w| w.parse().unwrap()).collect::<Vec<u32>>()),
-                _ => {}
-            }
-        }
-        let mesh = Mesh::from_polygons(input.clone(), &faces).unwrap();
-        (mesh, input, squeezed)
-    }
-
     #[test]
     fn a_sliver_whose_widened_cluster_refuses_every_fraction_still_opens() {
         // Three corners of the sliver's quad are non-manifold (two sheets
@@ -206,7 +184,7 @@ mod tests {
         // makes a defect, while a small step of its own corners widens it;
         // the step closes a face next to it below the floor, which the
         // next sweep finds and opens.
-        let (m, input, squeezed) = thick_slice_patch();
+        let (m, input, squeezed) = patch(include_str!("testdata/thick_slice_sliver.txt"));
         let t = Topology::build(&m);
         assert!(min_split_angle(&m, &squeezed, None) < 5.0);
         let mut p = squeezed.clone();

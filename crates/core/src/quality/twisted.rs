@@ -10,7 +10,13 @@
 //! opposite corners pinned, as where two sheets of a voxel mask touch at a
 //! corner), its corners that can move go back toward their input positions,
 //! where the quad was not twisted, by the smallest of the fold fix's
-//! [`RETREATS`](super::inverted::RETREATS) that untwists it.
+//! [`RETREATS`](super::inverted::RETREATS) that untwists it: each corner
+//! alone, then all of them together, then with one more ring of the
+//! vertices around them at a time, at most
+//! [`FOLD_WIDENINGS`](super::inverted::FOLD_WIDENINGS) times (a twisted
+//! quad is a defect like a fold; where its corners crossed far along the
+//! deep axis of thick slices, going back alone folds the quads around
+//! them).
 //!
 //! Every move is tried and kept only when it makes nothing worse (see
 //! `MoveTester`): no face becomes inverted relative to the input, no quad
@@ -25,7 +31,7 @@
 //! left, or after `max_sweeps`. Only interior vertices move, and in the
 //! retreats also non-manifold ones (`inverted::movable`).
 
-use super::inverted::{Cluster, movable};
+use super::inverted::{Cluster, FOLD_WIDENINGS, movable};
 use super::local::{MoveTester, Verdict, is_twisted};
 use super::sharp_angle::{Relocator, Visit};
 use crate::mesh::{Mesh, Topology, VertexKind};
@@ -143,9 +149,10 @@ pub fn fix_twisted_quads(
 
 /// Moves the corners of quad `f` that can move back (interior or
 /// non-manifold, away from the input) toward their input positions, one
-/// corner alone (in corner order) and then all of them together, each by
-/// the smallest of [`RETREATS`](super::inverted::RETREATS) that untwists
-/// the quad and adds no defect; keeps the first such move.
+/// corner alone (in corner order), then all of them together, then with
+/// up to [`FOLD_WIDENINGS`] more rings of such vertices, each by the
+/// smallest of [`RETREATS`](super::inverted::RETREATS) that untwists the
+/// quad and adds no defect; keeps the first such move.
 fn retreat_corners(
     mesh: &Mesh,
     topo: &Topology,
@@ -164,10 +171,8 @@ fn retreat_corners(
         }
     }
     let corners = &corners[..n];
-    let singles = corners.iter().map(std::slice::from_ref);
-    let all = (n > 1).then_some(corners);
-    for group in singles.chain(all) {
-        cluster.set(group);
+    for single in corners.iter().map(std::slice::from_ref) {
+        cluster.set(single);
         if cluster
             .retreat(mesh, topo, positions, input, tester, 1.0, &untwists)
             .is_some()
@@ -175,7 +180,22 @@ fn retreat_corners(
             return true;
         }
     }
-    false
+    if n == 0 {
+        return false;
+    }
+    cluster.set(corners);
+    cluster
+        .retreat_widening(
+            mesh,
+            topo,
+            positions,
+            input,
+            tester,
+            1.0,
+            &untwists,
+            FOLD_WIDENINGS,
+        )
+        .is_some()
 }
 
 fn count_twisted_around(mesh: &Mesh, topo: &Topology, v: usize, positions: &[DVec3]) -> u32 {
@@ -229,7 +249,7 @@ fn swap_with_twisted_neighbour(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::quality::fixtures::{at, grid};
+    use crate::quality::fixtures::{at, grid, patch};
     use crate::report::measure_stage;
 
     #[test]
@@ -307,6 +327,23 @@ mod tests {
                 .any(|&r| (r - back).abs() < 1e-12),
             "{back}"
         );
+        let after = measure_stage(&m, &t, &p, &input, None, 0.2);
+        assert_eq!((after.twisted_quads, after.inverted_faces), (0, 0));
+    }
+
+    #[test]
+    fn a_twisted_quad_pinned_by_its_neighbours_goes_back_with_them() {
+        // Two corners of the quad are the ends of a non-manifold edge of a
+        // 0.5 x 0.5 x 3 mm mask; the other two crossed along the deep
+        // axis. No relocation untwists it, and its corners alone cannot go
+        // back without folding the quads around them: the corners and the
+        // ring around them go back together.
+        let (m, input, start) = patch(include_str!("testdata/thick_slice_twisted.txt"));
+        let t = Topology::build(&m);
+        let mut p = start.clone();
+        let stats = fix_twisted_quads(&m, &t, &mut p, &input, None, 10, 0.5);
+        assert!(stats.found >= 1, "{stats:?}");
+        assert_eq!(stats.remaining, 0, "{stats:?}");
         let after = measure_stage(&m, &t, &p, &input, None, 0.2);
         assert_eq!((after.twisted_quads, after.inverted_faces), (0, 0));
     }
