@@ -310,6 +310,13 @@ pub(crate) struct Verdict {
     /// twisted becomes twisted, or a quad's split corner opens beyond 160°
     /// (or beyond its angle before, if wider): the move is never allowed.
     pub new_defect: bool,
+    /// The part of `new_defect` that is not a wide corner: a jump beyond
+    /// the vertex's reach or the fidelity bound, a face newly inverted or
+    /// a quad newly twisted.
+    pub new_fold: bool,
+    /// Cosine of the widest split corner the move opens beyond 160° (or
+    /// beyond its angle before, if wider); 1 when it opens none.
+    pub opened_corner_cos: f64,
     /// Inverted faces before and after, among the affected faces.
     pub inverted: (u32, u32),
     /// Twisted quads before and after, among the affected faces.
@@ -491,6 +498,8 @@ impl MoveTester {
         };
         let mut verdict = Verdict {
             new_defect: false,
+            new_fold: false,
+            opened_corner_cos: 1.0,
             inverted: (0, 0),
             twisted: (0, 0),
             max_cos: (-1.0, -1.0),
@@ -523,9 +532,10 @@ impl MoveTester {
         {
             let normals = &self.input_normals[start as usize..];
             let a = face_state_at(mesh.face(f as usize), pos, normals, self.cos_goal);
-            verdict.new_defect |= (a.inverted && !b.inverted)
-                || (a.twisted && !b.twisted)
-                || a.wide_cos < b.wide_cos.min(WIDEST_CORNER_COS);
+            verdict.new_fold |= (a.inverted && !b.inverted) || (a.twisted && !b.twisted);
+            if a.wide_cos < b.wide_cos.min(WIDEST_CORNER_COS) {
+                verdict.opened_corner_cos = verdict.opened_corner_cos.min(a.wide_cos);
+            }
             verdict.inverted.0 += b.inverted as u32;
             verdict.inverted.1 += a.inverted as u32;
             verdict.twisted.0 += b.twisted as u32;
@@ -537,6 +547,8 @@ impl MoveTester {
             verdict.newly_sharp |= b.max_cos <= self.cos_goal && a.max_cos > self.cos_goal;
             verdict.input_sliver_shrunk |= a.max_cos > input_floor.max(b.max_cos);
         }
+        verdict.new_fold |= verdict.new_defect;
+        verdict.new_defect = verdict.new_fold || verdict.opened_corner_cos < 1.0;
         verdict
     }
 }

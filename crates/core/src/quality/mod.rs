@@ -8,7 +8,8 @@
 //! the non-manifold vertices the voxel relaxation moved), and keep a move
 //! only when it makes nothing worse: no face becomes inverted relative to
 //! the input, no quad becomes twisted, no quad corner divided by the
-//! triangle split opens beyond 160° (or beyond its angle before), no
+//! triangle split opens beyond 160° (or beyond its angle before; the
+//! twisted-quad fix's last resort allows 170°), no
 //! defect count grows, and the smallest
 //! split-triangle angle of the affected faces does not shrink (a move that
 //! removes a twisted quad or an inverted face may shrink it: defects

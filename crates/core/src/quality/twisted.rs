@@ -16,7 +16,10 @@
 //! [`FOLD_WIDENINGS`](super::inverted::FOLD_WIDENINGS) times (a twisted
 //! quad is a defect like a fold; where its corners crossed far along the
 //! deep axis of thick slices, going back alone folds the quads around
-//! them).
+//! them). When no such move keeps the split corners of the quads around
+//! within 160° (`MoveTester`), the same moves are tried once more letting
+//! one open up to 170° ([`UNTWIST_CORNER_COS`]): a fold outranks a wide
+//! corner.
 //!
 //! Every move is tried and kept only when it makes nothing worse (see
 //! `MoveTester`): no face becomes inverted relative to the input, no quad
@@ -71,6 +74,22 @@ fn twisted_quads(mesh: &Mesh, positions: &[DVec3]) -> Vec<u32> {
 /// Accepted when it removes a twisted quad and adds no defect.
 fn untwists(v: &Verdict) -> bool {
     !v.new_defect && v.twisted.1 < v.twisted.0 && v.inverted.1 <= v.inverted.0
+}
+
+/// Cosine of the widest split corner (170°) a retreat may open in a quad
+/// around a twisted one when no retreat untwists it within the usual 160°
+/// (`local::WIDEST_CORNER_COS`): a twisted quad is a fold, a corner this
+/// wide still leaves its quad convex, with 10° for the split triangles'
+/// other angles at that diagonal, which the later fixes may widen.
+const UNTWIST_CORNER_COS: f64 = -0.984_807_753_012_208;
+
+/// [`untwists`], letting a split corner around the quad open up to
+/// [`UNTWIST_CORNER_COS`].
+fn untwists_opening(v: &Verdict) -> bool {
+    !v.new_fold
+        && v.opened_corner_cos >= UNTWIST_CORNER_COS
+        && v.twisted.1 < v.twisted.0
+        && v.inverted.1 <= v.inverted.0
 }
 
 /// Untwists twisted quads by swapping the end points of an edge shared
@@ -131,7 +150,18 @@ pub fn fix_twisted_quads(
                 stats.rejected += 1;
             }
             if !relocated
-                && retreat_corners(mesh, topo, f, positions, input, &mut tester, &mut cluster)
+                && [untwists, untwists_opening].iter().any(|accept| {
+                    retreat_corners(
+                        mesh,
+                        topo,
+                        f,
+                        positions,
+                        input,
+                        &mut tester,
+                        &mut cluster,
+                        accept,
+                    )
+                })
             {
                 stats.retreats += 1;
                 changed = true;
@@ -153,6 +183,7 @@ pub fn fix_twisted_quads(
 /// up to [`FOLD_WIDENINGS`] more rings of such vertices, each by the
 /// smallest of [`RETREATS`](super::inverted::RETREATS) that untwists the
 /// quad and adds no defect; keeps the first such move.
+#[allow(clippy::too_many_arguments)]
 fn retreat_corners(
     mesh: &Mesh,
     topo: &Topology,
@@ -161,6 +192,7 @@ fn retreat_corners(
     input: &[DVec3],
     tester: &mut MoveTester,
     cluster: &mut Cluster,
+    accept: &dyn Fn(&Verdict) -> bool,
 ) -> bool {
     let mut corners = [0usize; 4];
     let mut n = 0;
@@ -174,7 +206,7 @@ fn retreat_corners(
     for single in corners.iter().map(std::slice::from_ref) {
         cluster.set(single);
         if cluster
-            .retreat(mesh, topo, positions, input, tester, 1.0, &untwists)
+            .retreat(mesh, topo, positions, input, tester, 1.0, accept)
             .is_some()
         {
             return true;
@@ -192,7 +224,7 @@ fn retreat_corners(
             input,
             tester,
             1.0,
-            &untwists,
+            accept,
             FOLD_WIDENINGS,
         )
         .is_some()
@@ -250,6 +282,7 @@ fn swap_with_twisted_neighbour(
 mod tests {
     use super::*;
     use crate::quality::fixtures::{at, grid, patch};
+    use crate::quality::local::face_state;
     use crate::report::measure_stage;
 
     #[test]
@@ -315,7 +348,8 @@ mod tests {
             &mut p,
             &input,
             &mut tester,
-            &mut cluster
+            &mut cluster,
+            &untwists
         ));
         assert!(!is_twisted(m.face(f as usize), &p));
         let moved: Vec<usize> = (0..p.len()).filter(|&w| p[w] != twisted[w]).collect();
@@ -346,6 +380,27 @@ mod tests {
         assert_eq!(stats.remaining, 0, "{stats:?}");
         let after = measure_stage(&m, &t, &p, &input, None, 0.2);
         assert_eq!((after.twisted_quads, after.inverted_faces), (0, 0));
+    }
+
+    #[test]
+    fn a_twisted_quad_may_open_a_neighbour_up_to_170_degrees() {
+        // The same configuration elsewhere (a mask thresholded lower): no
+        // retreat of any widening untwists the quad without opening a
+        // split corner of a quad next to it past 160 degrees.
+        let (m, input, start) = patch(include_str!("testdata/thick_slice_twisted_wide.txt"));
+        let t = Topology::build(&m);
+        let mut p = start.clone();
+        let stats = fix_twisted_quads(&m, &t, &mut p, &input, None, 10, 0.5);
+        assert!(stats.found >= 1, "{stats:?}");
+        assert_eq!(stats.remaining, 0, "{stats:?}");
+        let widest = (0..m.num_faces())
+            .map(|f| face_state(m.face(f), &p, &input).wide_cos)
+            .fold(1.0f64, f64::min);
+        assert!(
+            widest >= UNTWIST_CORNER_COS,
+            "{}",
+            widest.acos().to_degrees()
+        );
     }
 
     #[test]
