@@ -313,7 +313,7 @@ pub(crate) struct Verdict {
     /// The part of `new_defect` that is not a wide corner: a jump beyond
     /// the vertex's reach or the fidelity bound, a face newly inverted or
     /// a quad newly twisted.
-    pub new_fold: bool,
+    pub new_fold_or_jump: bool,
     /// Cosine of the widest split corner the move opens beyond 160° (or
     /// beyond its angle before, if wider); 1 when it opens none.
     pub opened_corner_cos: f64,
@@ -498,7 +498,7 @@ impl MoveTester {
         };
         let mut verdict = Verdict {
             new_defect: false,
-            new_fold: false,
+            new_fold_or_jump: false,
             opened_corner_cos: 1.0,
             inverted: (0, 0),
             twisted: (0, 0),
@@ -509,13 +509,13 @@ impl MoveTester {
         };
         // A fix moves a vertex within its star; a longer jump (a fit or
         // centroid gone wrong on a tangled patch) is never a repair.
-        verdict.new_defect = moves.iter().any(|&(w, p)| {
+        verdict.new_fold_or_jump = moves.iter().any(|&(w, p)| {
             let reach = self.reach.iter().find(|r| r.0 == w).map_or(0.0, |r| r.1);
             let jump = p.distance(positions[w]);
             jump > reach || jump.is_nan()
         });
         if let Some(bound) = &self.bound {
-            verdict.new_defect |= moves.iter().any(|&(w, p)| {
+            verdict.new_fold_or_jump |= moves.iter().any(|&(w, p)| {
                 self.reach
                     .iter()
                     .zip(&self.reach_input)
@@ -532,7 +532,7 @@ impl MoveTester {
         {
             let normals = &self.input_normals[start as usize..];
             let a = face_state_at(mesh.face(f as usize), pos, normals, self.cos_goal);
-            verdict.new_fold |= (a.inverted && !b.inverted) || (a.twisted && !b.twisted);
+            verdict.new_fold_or_jump |= (a.inverted && !b.inverted) || (a.twisted && !b.twisted);
             if a.wide_cos < b.wide_cos.min(WIDEST_CORNER_COS) {
                 verdict.opened_corner_cos = verdict.opened_corner_cos.min(a.wide_cos);
             }
@@ -547,8 +547,7 @@ impl MoveTester {
             verdict.newly_sharp |= b.max_cos <= self.cos_goal && a.max_cos > self.cos_goal;
             verdict.input_sliver_shrunk |= a.max_cos > input_floor.max(b.max_cos);
         }
-        verdict.new_fold |= verdict.new_defect;
-        verdict.new_defect = verdict.new_fold || verdict.opened_corner_cos < 1.0;
+        verdict.new_defect = verdict.new_fold_or_jump || verdict.opened_corner_cos < 1.0;
         verdict
     }
 }

@@ -78,15 +78,15 @@ fn untwists(v: &Verdict) -> bool {
 
 /// Cosine of the widest split corner (170°) a retreat may open in a quad
 /// around a twisted one when no retreat untwists it within the usual 160°
-/// (`local::WIDEST_CORNER_COS`): a twisted quad is a fold, a corner this
-/// wide still leaves its quad convex, with 10° for the split triangles'
-/// other angles at that diagonal, which the later fixes may widen.
+/// (`local::WIDEST_CORNER_COS`): a twisted quad is a fold, while a quad
+/// with a corner this wide is still convex, and the sharp-angle fix that
+/// runs next may close the corner again.
 const UNTWIST_CORNER_COS: f64 = -0.984_807_753_012_208;
 
 /// [`untwists`], letting a split corner around the quad open up to
 /// [`UNTWIST_CORNER_COS`].
 fn untwists_opening(v: &Verdict) -> bool {
-    !v.new_fold
+    !v.new_fold_or_jump
         && v.opened_corner_cos >= UNTWIST_CORNER_COS
         && v.twisted.1 < v.twisted.0
         && v.inverted.1 <= v.inverted.0
