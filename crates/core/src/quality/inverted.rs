@@ -11,7 +11,11 @@
 //! fraction `t` of the way to their input positions, trying the
 //! [`RETREATS`] from the smallest, and the
 //! first move that leaves fewer inverted faces and makes nothing worse is
-//! kept (see `MoveTester`). When none is, the cluster takes in such
+//! kept (see `MoveTester`; a retreat may move a vertex farther than its
+//! longest edge, the reach that guards the fixes against a fit gone wrong:
+//! it goes back the way the vertex came, as across thick slices, where
+//! vertices move along the deep axis by more than an in-plane edge). When
+//! none is, the cluster takes in such
 //! vertices one ring further out and tries again, at most [`FOLD_WIDENINGS`]
 //! times. The result gives up a little smoothing where the fold was, and
 //! only there. It runs after the sharp-angle fix, which opens most folds by
@@ -343,6 +347,7 @@ impl Cluster {
         accept: &dyn Fn(&Verdict) -> bool,
     ) -> Option<usize> {
         tester.begin(mesh, topo, &self.vertices, positions, input, cos_goal);
+        tester.reaching_input(positions, input);
         for t in RETREATS {
             self.moves.clear();
             self.moves.extend(

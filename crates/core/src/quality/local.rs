@@ -474,6 +474,16 @@ impl MoveTester {
         }
     }
 
+    /// Lets each vertex recorded by [`MoveTester::begin`] jump as far as
+    /// its input position: a retreat goes back along the way the vertex
+    /// came, to where its faces were sound, not to a fit's guess (what the
+    /// reach guards against).
+    pub fn reaching_input(&mut self, positions: &[DVec3], input: &[DVec3]) {
+        for r in &mut self.reach {
+            r.1 = r.1.max(positions[r.0].distance(input[r.0]));
+        }
+    }
+
     /// The goal given to [`MoveTester::begin`].
     pub fn cos_goal(&self) -> f64 {
         self.cos_goal

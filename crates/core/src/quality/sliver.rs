@@ -194,6 +194,20 @@ mod tests {
     }
 
     #[test]
+    fn a_sliver_goes_back_farther_than_its_edges_are_long() {
+        // A 1 x 1 x 4 mm mask: the sliver's corners moved along the deep
+        // axis by more than their longest edge is now long, and only going
+        // half way back opens it. A retreat may jump that far.
+        let (m, input, squeezed) = patch(include_str!("testdata/deep_slice_sliver.txt"));
+        let t = Topology::build(&m);
+        assert!(min_split_angle(&m, &squeezed, None) < 6.0);
+        let mut p = squeezed.clone();
+        let stats = fix_slivers(&m, &t, &mut p, &input, None, 10.0, 10);
+        assert_eq!(stats.remaining, 0, "{stats:?}");
+        assert!(min_split_angle(&m, &p, None) >= 10.0);
+    }
+
+    #[test]
     fn a_sliver_the_input_had_is_left_alone() {
         let m = grid(6);
         let t = Topology::build(&m);
