@@ -172,22 +172,18 @@ pub(super) fn retreat_sweeps(
                 stats.rejected += 1;
                 continue;
             }
-            let (goal, widenings) = (rule.cos_goal, rule.widenings);
-            let mut moved = cluster.retreat_widening(
-                mesh,
-                topo,
-                positions,
-                input,
-                &mut tester,
-                goal,
-                rule.accept,
-                widenings,
-            );
-            if let (None, Some(fallback)) = (moved, rule.fallback) {
-                // From the narrowest cluster out again: a wider one gives up
-                // more smoothing, and its outer ring may refuse every
-                // fraction that the narrowest takes.
-                cluster.gather(mesh, topo, f, positions, input, |g| bad(g, positions));
+            // The fallback starts from the narrowest cluster again: a wider
+            // one gives up more smoothing, and its outer ring may refuse
+            // every fraction that the narrowest takes.
+            let mut moved = None;
+            for (k, accept) in std::iter::once(rule.accept)
+                .chain(rule.fallback)
+                .enumerate()
+            {
+                if k > 0 {
+                    cluster.gather(mesh, topo, f, positions, input, |g| bad(g, positions));
+                }
+                let (goal, widenings) = (rule.cos_goal, rule.widenings);
                 moved = cluster.retreat_widening(
                     mesh,
                     topo,
@@ -195,9 +191,12 @@ pub(super) fn retreat_sweeps(
                     input,
                     &mut tester,
                     goal,
-                    fallback,
+                    accept,
                     widenings,
                 );
+                if moved.is_some() {
+                    break;
+                }
             }
             match moved {
                 Some(n) => {
