@@ -93,6 +93,7 @@ pub fn fix_inverted_faces(
         accept: &|v| !v.new_defect && v.inverted.1 < v.inverted.0 && v.twisted.1 <= v.twisted.0,
         fallback: None,
         widenings: FOLD_WIDENINGS,
+        corner_subsets: false,
     };
     let s = retreat_sweeps(mesh, topo, positions, input, bound, max_sweeps, &rule);
     InvertedStats {
@@ -120,6 +121,10 @@ pub(super) struct RetreatRule<'r> {
     pub fallback: Option<&'r dyn Fn(&Verdict) -> bool>,
     /// How many times a cluster may take in one more ring of vertices.
     pub widenings: usize,
+    /// Whether, when no widening of a cluster gives a kept move, the
+    /// movable corners of the face it was gathered from go back in
+    /// subsets, fewest corners first ([`retreat_corner_subsets`]).
+    pub corner_subsets: bool,
 }
 
 /// What [`retreat_sweeps`] did; each fix reports it under its own name.
@@ -198,6 +203,18 @@ pub(super) fn retreat_sweeps(
                     break;
                 }
             }
+            if moved.is_none() && rule.corner_subsets {
+                moved = retreat_corner_subsets(
+                    mesh,
+                    topo,
+                    f,
+                    positions,
+                    input,
+                    &mut tester,
+                    &mut cluster,
+                    rule,
+                );
+            }
             match moved {
                 Some(n) => {
                     stats.retreats += 1;
@@ -217,6 +234,70 @@ pub(super) fn retreat_sweeps(
     }
     stats.remaining = faces_where(mesh, positions, rule).len() as u64;
     stats
+}
+
+/// The most movable corners a face may have for [`retreat_corner_subsets`]:
+/// a quad's four give fifteen subsets; a polygon's `2^n` would make one
+/// face's repair cost grow with the power of its size.
+pub const MAX_SUBSET_CORNERS: usize = 4;
+
+/// Moves the movable corners of face `f` (see [`movable`]; at most
+/// [`MAX_SUBSET_CORNERS`], else nothing) back toward `input` in every
+/// non-empty subset, each by the smallest of [`RETREATS`] that
+/// `rule.accept`s, the subsets of one corner first, then of two, and so on
+/// (the least smoothing given up first); when none does, the same with
+/// `rule.fallback`. Returns how many vertices the kept move moved.
+///
+/// A cluster moves all its vertices by one fraction. Where the smoothing
+/// squeezed a face between corners that moved by different amounts (across
+/// a thick slice, a corner on a non-manifold edge beside one that is not),
+/// every common fraction that opens it closes a face around another of its
+/// corners; going back with some of its corners only opens it.
+#[allow(clippy::too_many_arguments)]
+fn retreat_corner_subsets(
+    mesh: &Mesh,
+    topo: &Topology,
+    f: u32,
+    positions: &mut [DVec3],
+    input: &[DVec3],
+    tester: &mut MoveTester,
+    cluster: &mut Cluster,
+    rule: &RetreatRule,
+) -> Option<usize> {
+    let mut corners = [0usize; MAX_SUBSET_CORNERS];
+    let mut n = 0;
+    for &c in mesh.face(f as usize) {
+        let c = c as usize;
+        if !movable(topo, c, positions, input) || corners[..n].contains(&c) {
+            continue;
+        }
+        if n == MAX_SUBSET_CORNERS {
+            return None;
+        }
+        corners[n] = c;
+        n += 1;
+    }
+    let mut subset = [0usize; MAX_SUBSET_CORNERS];
+    for accept in std::iter::once(rule.accept).chain(rule.fallback) {
+        for size in 1..=n as u32 {
+            for mask in (1u32..1 << n).filter(|m| m.count_ones() == size) {
+                let mut k = 0;
+                for (i, &c) in corners[..n].iter().enumerate() {
+                    if mask & (1 << i) != 0 {
+                        subset[k] = c;
+                        k += 1;
+                    }
+                }
+                cluster.set(&subset[..k]);
+                let moved =
+                    cluster.retreat(mesh, topo, positions, input, tester, rule.cos_goal, accept);
+                if moved.is_some() {
+                    return moved;
+                }
+            }
+        }
+    }
+    None
 }
 
 /// True when vertex `v` is interior or non-manifold and away from its input

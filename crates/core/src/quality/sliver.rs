@@ -15,8 +15,11 @@
 //! ring more at most [`SLIVER_WIDENINGS`] times; when none does, by the
 //! smallest that widens the cluster's smallest angle (tried from the
 //! narrowest cluster out, so a ring whose faces refuse every fraction does
-//! not block the fraction the sliver's own corners take). Smoothing is given
-//! up only where a sliver was ([`retreat_sweeps`], the fold fix's
+//! not block the fraction the sliver's own corners take); when none does
+//! either, by some of the sliver's own corners only, fewest first, with
+//! the same two rules (`retreat_corner_subsets`: a face squeezed between
+//! corners that moved by different amounts opens only so). Smoothing is
+//! given up only where a sliver was ([`retreat_sweeps`], the fold fix's
 //! mechanism).
 //!
 //! Order: sequential, slivers in ascending face order (deterministic); each
@@ -88,6 +91,7 @@ pub fn fix_slivers(
         accept: &|v| clean(v) && v.max_cos.1 <= cos_floor,
         fallback: Some(&|v| clean(v) && v.max_cos.1 < v.max_cos.0),
         widenings: SLIVER_WIDENINGS,
+        corner_subsets: true,
     };
     let s = retreat_sweeps(mesh, topo, positions, input, bound, max_sweeps, &rule);
     SliverStats {
@@ -209,6 +213,16 @@ mod tests {
         // axis by more than their longest edge is now long, and only going
         // half way back opens it. A retreat may jump that far.
         opens_to_the_floor(include_str!("testdata/deep_slice_sliver.txt"), 6.0);
+    }
+
+    #[test]
+    fn a_sliver_opens_when_some_of_its_corners_go_back() {
+        // A 1 x 1 x 4 mm mask at a thin threshold: two of the sliver's
+        // corners sit on non-manifold edges and moved less than the other
+        // two. No fraction of the cluster or its widenings, taken by all
+        // of its vertices, widens the sliver without closing a face beside
+        // it; two of its corners going back alone open it.
+        opens_to_the_floor(include_str!("testdata/deep_slice_sliver_corners.txt"), 5.0);
     }
 
     #[test]
