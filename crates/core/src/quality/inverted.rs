@@ -121,8 +121,9 @@ pub(super) struct RetreatRule<'r> {
     pub fallback: Option<&'r dyn Fn(&Verdict) -> bool>,
     /// How many times a cluster may take in one more ring of vertices.
     pub widenings: usize,
-    /// Whether, when no widening of a cluster gives a kept move, the
-    /// movable corners of the face it was gathered from go back in
+    /// Whether, once a sweep's cluster retreats moved nothing, the later
+    /// sweeps also try, for a cluster no widening of which gives a kept
+    /// move, the movable corners of the face it was gathered from in
     /// subsets, fewest corners first ([`retreat_corner_subsets`]).
     pub corner_subsets: bool,
 }
@@ -165,6 +166,10 @@ pub(super) fn retreat_sweeps(
     let mut tester = MoveTester::bounded(bound);
     let mut cluster = Cluster::default();
     let bad = |f: u32, p: &[DVec3]| (rule.bad)(mesh.face(f as usize), p);
+    // The corner subsets join only once the clusters' retreats are stuck:
+    // taken earlier, a subset's move can block what a later sweep's
+    // cluster retreat would open.
+    let mut subsets = false;
     while !left.is_empty() && stats.sweeps < max_sweeps as u64 {
         stats.sweeps += 1;
         let mut changed = false;
@@ -203,7 +208,7 @@ pub(super) fn retreat_sweeps(
                     break;
                 }
             }
-            if moved.is_none() && rule.corner_subsets {
+            if moved.is_none() && subsets {
                 moved = retreat_corner_subsets(
                     mesh,
                     topo,
@@ -225,7 +230,11 @@ pub(super) fn retreat_sweeps(
             }
         }
         if !changed {
-            break;
+            if subsets || !rule.corner_subsets {
+                break;
+            }
+            subsets = true;
+            continue;
         }
         // Rescanned, not only the faces left: a fallback move may lift a
         // cluster's smallest angle while closing a face next to it below

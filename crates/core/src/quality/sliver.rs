@@ -15,17 +15,21 @@
 //! ring more at most [`SLIVER_WIDENINGS`] times; when none does, by the
 //! smallest that widens the cluster's smallest angle (tried from the
 //! narrowest cluster out, so a ring whose faces refuse every fraction does
-//! not block the fraction the sliver's own corners take); when none does
-//! either, by some of the sliver's own corners only, fewest first, with
-//! the same two rules (`retreat_corner_subsets`: a face squeezed between
-//! corners that moved by different amounts opens only so). Smoothing is
+//! not block the fraction the sliver's own corners take). Once a sweep
+//! moves nothing so, the later sweeps also try, where no retreat of the
+//! cluster is kept, some of the sliver's own corners only, fewest first,
+//! with the same two rules (`retreat_corner_subsets`: a face squeezed
+//! between corners that moved by different amounts opens only so; tried
+//! earlier, such a move can block a cluster's retreat that a later sweep
+//! would have kept). Smoothing is
 //! given up only where a sliver was ([`retreat_sweeps`], the fold fix's
 //! mechanism).
 //!
 //! Order: sequential, slivers in ascending face order (deterministic); each
 //! sweep scans the whole mesh again (a fallback move may close a face next
-//! to its cluster below the floor); the fix stops after a sweep that
-//! changes nothing, when none is left, or after `max_sweeps`. Only
+//! to its cluster below the floor); the fix stops after a sweep with the
+//! corner subsets that changes nothing, when none is left, or after
+//! `max_sweeps`. Only
 //! interior and non-manifold vertices move (a voxel mesh's side wall
 //! squeezed across a non-manifold edge opens only when that edge's ends go
 //! back, `inverted::movable`).
@@ -223,6 +227,16 @@ mod tests {
         // of its vertices, widens the sliver without closing a face beside
         // it; two of its corners going back alone open it.
         opens_to_the_floor(include_str!("testdata/deep_slice_sliver_corners.txt"), 5.0);
+    }
+
+    #[test]
+    fn corner_subsets_wait_until_the_clusters_are_stuck() {
+        // The same mesh at a thick threshold: a sliver whose cluster
+        // refuses every retreat in the first sweep opens in the next,
+        // after its neighbours' retreats. A subset of its corners taken
+        // in the first sweep widens it a little and leaves it at 9.4
+        // degrees, where no later retreat opens it.
+        opens_to_the_floor(include_str!("testdata/deep_slice_sliver_order.txt"), 7.0);
     }
 
     #[test]
