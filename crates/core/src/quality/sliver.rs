@@ -21,18 +21,16 @@
 //! with the same two rules (`retreat_corner_subsets`: a face squeezed
 //! between corners that moved by different amounts opens only so; tried
 //! earlier, such a move can block a cluster's retreat that a later sweep
-//! would have kept). Smoothing is
-//! given up only where a sliver was ([`retreat_sweeps`], the fold fix's
-//! mechanism).
+//! would have kept). Smoothing is given up only where a sliver was
+//! ([`retreat_sweeps`], the fold fix's mechanism).
 //!
 //! Order: sequential, slivers in ascending face order (deterministic); each
 //! sweep scans the whole mesh again (a fallback move may close a face next
 //! to its cluster below the floor); the fix stops after a sweep with the
 //! corner subsets that changes nothing, when none is left, or after
-//! `max_sweeps`. Only
-//! interior and non-manifold vertices move (a voxel mesh's side wall
-//! squeezed across a non-manifold edge opens only when that edge's ends go
-//! back, `inverted::movable`).
+//! `max_sweeps`. Only interior and non-manifold vertices move (a voxel
+//! mesh's side wall squeezed across a non-manifold edge opens only when
+//! that edge's ends go back, `inverted::movable`).
 
 use super::inverted::{RetreatRule, retreat_sweeps};
 use super::local::{Verdict, has_angle_below};
@@ -225,17 +223,17 @@ mod tests {
         // corners sit on non-manifold edges and moved less than the other
         // two. No fraction of the cluster or its widenings, taken by all
         // of its vertices, widens the sliver without closing a face beside
-        // it; two of its corners going back alone open it.
+        // it; some of its corners going back without the others open it.
         opens_to_the_floor(include_str!("testdata/deep_slice_sliver_corners.txt"), 5.0);
     }
 
     #[test]
     fn corner_subsets_wait_until_the_clusters_are_stuck() {
-        // The same mesh at a thick threshold: a sliver whose cluster
-        // refuses every retreat in the first sweep opens in the next,
-        // after its neighbours' retreats. A subset of its corners taken
-        // in the first sweep widens it a little and leaves it at 9.4
-        // degrees, where no later retreat opens it.
+        // The same voxels at a thick threshold. The clusters' retreats
+        // alone open every sliver, over a few sweeps. With the subsets
+        // tried from the first sweep, a subset's move that only widens a
+        // sliver a little leaves it at 9.4 degrees, where no later
+        // retreat opens it.
         opens_to_the_floor(include_str!("testdata/deep_slice_sliver_order.txt"), 7.0);
     }
 
