@@ -51,7 +51,9 @@ pub struct SliverStats {
     /// Faces with a split-triangle angle below the floor before the fix
     /// (and not in the input).
     pub found: u64,
-    /// Accepted cluster moves towards the input.
+    /// Accepted moves towards the input: of a cluster's vertices
+    /// together, or, once those are stuck, of some of one sliver's
+    /// corners.
     pub retreats: u64,
     /// Vertices those moves moved (a vertex moved twice counts twice).
     pub vertices_moved: u64,
