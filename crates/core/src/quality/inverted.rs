@@ -193,16 +193,15 @@ pub(super) fn retreat_sweeps(
                 if k > 0 {
                     cluster.gather(mesh, topo, f, positions, input, |g| bad(g, positions));
                 }
-                let (goal, widenings) = (rule.cos_goal, rule.widenings);
                 moved = cluster.retreat_widening(
                     mesh,
                     topo,
                     positions,
                     input,
                     &mut tester,
-                    goal,
+                    rule.cos_goal,
                     accept,
-                    widenings,
+                    rule.widenings,
                 );
                 if moved.is_some() {
                     break;
@@ -273,19 +272,7 @@ fn retreat_corner_subsets(
     cluster: &mut Cluster,
     rule: &RetreatRule,
 ) -> Option<usize> {
-    let mut corners = [0usize; MAX_SUBSET_CORNERS];
-    let mut n = 0;
-    for &c in mesh.face(f as usize) {
-        let c = c as usize;
-        if !movable(topo, c, positions, input) || corners[..n].contains(&c) {
-            continue;
-        }
-        if n == MAX_SUBSET_CORNERS {
-            return None;
-        }
-        corners[n] = c;
-        n += 1;
-    }
+    let (corners, n) = movable_corners(mesh, topo, f, positions, input)?;
     let mut subset = [0usize; MAX_SUBSET_CORNERS];
     for accept in std::iter::once(rule.accept).chain(rule.fallback) {
         for size in 1..=n as u32 {
@@ -307,6 +294,32 @@ fn retreat_corner_subsets(
         }
     }
     None
+}
+
+/// The distinct corners of face `f` that can move back ([`movable`]), in
+/// corner order, with their count; `None` when there are more than
+/// [`MAX_SUBSET_CORNERS`].
+pub(super) fn movable_corners(
+    mesh: &Mesh,
+    topo: &Topology,
+    f: u32,
+    positions: &[DVec3],
+    input: &[DVec3],
+) -> Option<([usize; MAX_SUBSET_CORNERS], usize)> {
+    let mut corners = [0usize; MAX_SUBSET_CORNERS];
+    let mut n = 0;
+    for &c in mesh.face(f as usize) {
+        let c = c as usize;
+        if !movable(topo, c, positions, input) || corners[..n].contains(&c) {
+            continue;
+        }
+        if n == MAX_SUBSET_CORNERS {
+            return None;
+        }
+        corners[n] = c;
+        n += 1;
+    }
+    Some((corners, n))
 }
 
 /// True when vertex `v` is interior or non-manifold and away from its input

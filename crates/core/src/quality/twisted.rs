@@ -34,7 +34,7 @@
 //! left, or after `max_sweeps`. Only interior vertices move, and in the
 //! retreats also non-manifold ones (`inverted::movable`).
 
-use super::inverted::{Cluster, FOLD_WIDENINGS, movable};
+use super::inverted::{Cluster, FOLD_WIDENINGS, movable_corners};
 use super::local::{MoveTester, Verdict, is_twisted};
 use super::sharp_angle::{Relocator, Visit};
 use crate::mesh::{Mesh, Topology, VertexKind};
@@ -194,14 +194,9 @@ fn retreat_corners(
     cluster: &mut Cluster,
     accept: &dyn Fn(&Verdict) -> bool,
 ) -> bool {
-    let mut corners = [0usize; 4];
-    let mut n = 0;
-    for &c in &mesh.face(f as usize)[..4] {
-        if movable(topo, c as usize, positions, input) {
-            corners[n] = c as usize;
-            n += 1;
-        }
-    }
+    let Some((corners, n)) = movable_corners(mesh, topo, f, positions, input) else {
+        return false;
+    };
     let corners = &corners[..n];
     for single in corners.iter().map(std::slice::from_ref) {
         cluster.set(single);
