@@ -24,6 +24,7 @@ use crate::smoothing::fairing::{FairingPlan, fair};
 use crate::smoothing::fidelity::{Fidelity, FidelityBound};
 use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
+use crate::smoothing::pinches::place_pinches;
 use crate::smoothing::project::FitStats;
 use crate::smoothing::staircase::{compensate_shrinkage, relax_staircase};
 use crate::smoothing::taubin::{LOWPASS_LAMBDA, LOWPASS_MU, taubin_in_place};
@@ -429,13 +430,33 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             params.min_normal_cos(),
         );
         // Where voxels touch only along an edge or at a corner, the shared
-        // corner is as much a staircase corner as any other: held where it
-        // was it would pin both sheets to the lattice.
+        // corner goes to its eight voxels' level first and stays there:
+        // the relaxation's mean of both sheets' neighbours would pull it
+        // back toward the corner. A pinch already at its level (four
+        // voxels in a saddle) relaxes with the rest: held where it was it
+        // would pin both sheets to the lattice. Like the faired corners,
+        // a pinch keeps off the walls of its dual voxel (`FAIRING_ROOM`).
+        let placed = run.bound.map_or_else(Vec::new, |bound| {
+            let room = bound.scaled(FAIRING_ROOM);
+            place_pinches(run.mesh, run.topo, positions, run.relaxable, &room)
+        });
+        let held: Vec<bool>;
+        let relaxable = if placed.is_empty() {
+            run.relaxable
+        } else {
+            held = run
+                .relaxable
+                .iter()
+                .zip(&placed)
+                .map(|(&r, &p)| r && !p)
+                .collect();
+            &held
+        };
         relax_staircase(
             run.mesh,
             run.topo,
             positions,
-            run.relaxable,
+            relaxable,
             params.staircase_steps,
             params.lattice_staircase_lambda,
             f64::NEG_INFINITY,
@@ -445,7 +466,7 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             run.mesh,
             run.topo,
             positions,
-            run.relaxable,
+            relaxable,
             params.lattice_shrinkage_compensation,
             f64::NEG_INFINITY,
             run.fidelity,
@@ -1199,6 +1220,17 @@ mod tests {
     use super::*;
     use crate::shapes::{self, VoxelMask, voxel_boundary_mesh};
 
+    /// The pipeline at its default parameters.
+    fn run_defaults(mesh: &Mesh) -> SmoothOutput {
+        run(
+            mesh,
+            &Params::default(),
+            &crate::NoProgress,
+            &AtomicBool::new(false),
+        )
+        .expect("run")
+    }
+
     #[test]
     fn the_adaptive_passes_leave_the_vertices_beside_a_pinch() {
         let mesh = shapes::edge_touching_blocks();
@@ -1218,6 +1250,42 @@ mod tests {
     }
 
     #[test]
+    fn the_ends_of_a_line_of_touching_voxels_stay_at_their_voxels_level() {
+        // Two blocks of different widths touching along an edge five
+        // voxels long: the line's two ends retreat into it, toward the
+        // level of their two of eight voxels (half a voxel in), as far as
+        // the fairing's room, and end there; the relaxation alone leaves
+        // them short of it. The corners between (four of eight voxels, a
+        // saddle) relax with the rest.
+        let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [11, 12, 7], |i, j, k| {
+            (1..6).contains(&k)
+                && ((1..6).contains(&i) && (1..6).contains(&j)
+                    || (6..9).contains(&i) && (6..10).contains(&j))
+        });
+        let mesh = voxel_boundary_mesh(&mask);
+        let topo = Topology::build(&mesh);
+        let out = run_defaults(&mesh);
+        let line: Vec<usize> = (0..topo.num_vertices())
+            .filter(|&v| topo.kind(v) == VertexKind::NonManifold)
+            .collect();
+        assert_eq!(line.len(), 6);
+        let (low, high) = (1.0, 6.0);
+        let retreat = 0.5 * FAIRING_ROOM;
+        for &v in &line {
+            let (p, q) = (mesh.positions()[v], out.positions[v]);
+            if p.z == low || p.z == high {
+                let inward = if p.z == low { retreat } else { -retreat };
+                assert!(
+                    q.abs_diff_eq(p + DVec3::Z * inward, 1e-6),
+                    "end {v}: {p} -> {q}"
+                );
+            } else {
+                assert!(q.z != p.z || q.x != p.x, "corner {v} did not relax: {q}");
+            }
+        }
+    }
+
+    #[test]
     fn a_marching_cubes_mesh_of_deep_voxels_keeps_half_its_needles_angles() {
         // A folded sheet three voxels thick on a seeded placement, meshed
         // by marching cubes on voxels six times as deep as wide (a clinical
@@ -1230,13 +1298,7 @@ mod tests {
         for p in mesh.positions_mut() {
             p.z *= 6.0;
         }
-        let out = run(
-            &mesh,
-            &Params::default(),
-            &crate::NoProgress,
-            &AtomicBool::new(false),
-        )
-        .expect("run");
+        let out = run_defaults(&mesh);
         let min_angle = |p: &[DVec3]| crate::quality::fixtures::min_split_angle(&mesh, p, None);
         let (before, after) = (min_angle(mesh.positions()), min_angle(&out.positions));
         assert!(before < 10.0, "the input has needles: {before}");
