@@ -430,12 +430,12 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             params.min_normal_cos(),
         );
         // Where voxels touch only along an edge or at a corner, the shared
-        // corner goes to its eight voxels' level first and stays there:
+        // corner goes to its mask's one-half level first and stays there:
         // the relaxation's mean of both sheets' neighbours would pull it
-        // back toward the corner. A pinch already at its level (four
-        // voxels in a saddle) relaxes with the rest: held where it was it
-        // would pin both sheets to the lattice. Like the faired corners,
-        // a pinch keeps off the walls of its dual voxel (`FAIRING_ROOM`).
+        // back toward the corner. A pinch already at its level relaxes
+        // with the rest: held where it was it would pin both sheets to the
+        // lattice. Like the faired corners, a pinch keeps off the walls of
+        // its dual voxel (`FAIRING_ROOM`).
         let placed = run.bound.map_or_else(Vec::new, |bound| {
             let room = bound.scaled(FAIRING_ROOM);
             place_pinches(run.mesh, run.topo, positions, run.relaxable, &room)
@@ -1250,13 +1250,12 @@ mod tests {
     }
 
     #[test]
-    fn the_ends_of_a_line_of_touching_voxels_stay_at_their_voxels_level() {
+    fn the_ends_of_a_line_of_touching_voxels_retreat_into_it() {
         // Two blocks of different widths touching along an edge five
         // voxels long: the line's two ends retreat into it, toward the
-        // level of their two of eight voxels (half a voxel in), as far as
-        // the fairing's room, and end there; the relaxation alone leaves
-        // them short of it. The corners between (four of eight voxels, a
-        // saddle) relax with the rest.
+        // one-half level of their blurred voxels (two of eight inside), as
+        // far as the fairing's room, and end there; the relaxation alone
+        // leaves them short of it.
         let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [11, 12, 7], |i, j, k| {
             (1..6).contains(&k)
                 && ((1..6).contains(&i) && (1..6).contains(&j)
