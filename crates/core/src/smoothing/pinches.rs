@@ -228,7 +228,8 @@ impl VoxelFaces {
         // Per voxel and axis: whether a face separates it from the next
         // voxel along that axis.
         let mut walled = [[false; 3]; 64];
-        let mut stack = Vec::with_capacity(64);
+        // Voxels decided and not yet spread; each enters once.
+        let (mut stack, mut pending) = ([0usize; 64], 0);
         for z in 0..4 {
             for y in 0..4 {
                 for x in 0..4 {
@@ -257,7 +258,8 @@ impl VoxelFaces {
                             }
                             if state[i].is_none() {
                                 state[i] = Some(inside);
-                                stack.push(i);
+                                stack[pending] = i;
+                                pending += 1;
                             }
                         }
                     }
@@ -265,7 +267,9 @@ impl VoxelFaces {
             }
         }
         // Spread the decided voxels to their unwalled neighbours.
-        while let Some(i) = stack.pop() {
+        while pending > 0 {
+            pending -= 1;
+            let i = stack[pending];
             let here = [i % 4, (i / 4) % 4, i / 16];
             for axis in 0..3 {
                 for up in [false, true] {
@@ -282,7 +286,8 @@ impl VoxelFaces {
                     match state[j] {
                         None => {
                             state[j] = state[i];
-                            stack.push(j);
+                            stack[pending] = j;
+                            pending += 1;
                         }
                         Some(x) if Some(x) != state[i] => return None,
                         Some(_) => {}
