@@ -441,6 +441,10 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             place_pinches(run.mesh, run.topo, positions, run.relaxable, &room)
         });
         let held: Vec<bool>;
+        tracing::debug!(
+            placed = placed.iter().filter(|&&p| p).count(),
+            "pinches placed at their mask's level"
+        );
         let relaxable = if placed.is_empty() {
             run.relaxable
         } else {
