@@ -60,7 +60,7 @@ pub const LINE_KEEP: f64 = 0.44;
 /// where the pinch at an edge's other end comes toward it too, the two
 /// keep [`LINE_KEEP`] of the edge. A vertex whose voxels the faces do not
 /// give consistently (not a lattice corner, an open rim) stays. Returns
-/// which vertices moved (empty when none did). Deterministic and parallel
+/// which vertices moved (empty when the mesh has no lattice or no pinch). Deterministic and parallel
 /// per vertex; the faces are sorted once, and each pinch looks up the 144
 /// squares between its 64 voxels.
 pub fn place_pinches(
@@ -77,7 +77,11 @@ pub fn place_pinches(
     }
     let (frame, spacing, room) = bound.in_frame();
     let input = mesh.positions();
-    let faces = VoxelFaces::build(mesh, frame, spacing);
+    // Grid coordinates count from a lattice node: a vertex with a box.
+    let Some(node) = room.iter().position(|&r| r > 0.0) else {
+        return Vec::new();
+    };
+    let faces = VoxelFaces::build(mesh, frame, spacing, input[node]);
     // Each pinch's level, in spacings along the lattice's axes.
     let levels: Vec<DVec3> = (0..topo.num_vertices())
         .into_par_iter()
@@ -159,14 +163,15 @@ fn block_index(x: usize, y: usize, z: usize) -> usize {
 }
 
 impl VoxelFaces {
-    /// The squares of `mesh`'s faces that lie on the lattice; a face off
-    /// it (not axis-aligned) is left out.
-    fn build(mesh: &Mesh, frame: [DVec3; 3], spacing: DVec3) -> Self {
+    /// The squares of `mesh`'s faces that lie on the lattice of `frame`
+    /// and `spacing` through the node at `origin`; a face off it (not
+    /// axis-aligned) is left out.
+    fn build(mesh: &Mesh, frame: [DVec3; 3], spacing: DVec3, origin: DVec3) -> Self {
         let p = mesh.positions();
         let mut faces = VoxelFaces {
             frame,
             spacing,
-            origin: p.first().copied().unwrap_or(DVec3::ZERO),
+            origin,
             squares: Vec::new(),
         };
         let in_frame = |d: DVec3| DVec3::new(frame[0].dot(d), frame[1].dot(d), frame[2].dot(d));
@@ -392,7 +397,12 @@ mod tests {
         let mask = voxel_mask(&shape);
         let mesh = voxel_boundary_mesh(&mask);
         let topo = Topology::build(&mesh);
-        let faces = VoxelFaces::build(&mesh, [DVec3::X, DVec3::Y, DVec3::Z], DVec3::ONE);
+        let faces = VoxelFaces::build(
+            &mesh,
+            [DVec3::X, DVec3::Y, DVec3::Z],
+            DVec3::ONE,
+            mesh.positions()[0],
+        );
         let pinches = (0..mesh.num_vertices())
             .filter(|&v| topo.kind(v) == VertexKind::NonManifold)
             .count();
