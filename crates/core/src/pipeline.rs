@@ -416,7 +416,8 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 /// lattice the relaxation, over all neighbours, and the fairing
 /// ([`fair_staircase`]) replace the passes ([`Params::staircase_steps`]),
 /// and the input's curvature comes from the same 2-ring fits made without
-/// moving a vertex.
+/// moving a vertex; before the relaxation, the lattice's pinches go to
+/// their mask's level ([`place_pinches`]).
 fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), Cancelled> {
     let params = run.params;
     if run.lattice && params.staircase_steps > 0 {
@@ -440,11 +441,11 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             let room = bound.scaled(FAIRING_ROOM);
             place_pinches(run.mesh, run.topo, positions, run.relaxable, &room)
         });
-        let held: Vec<bool>;
         tracing::debug!(
             placed = placed.iter().filter(|&&p| p).count(),
             "pinches placed at their mask's level"
         );
+        let held: Vec<bool>;
         let relaxable = if placed.is_empty() {
             run.relaxable
         } else {

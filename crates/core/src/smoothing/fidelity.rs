@@ -473,7 +473,7 @@ impl FidelityBound {
 }
 
 /// Offset `d` in the coordinates of the orthonormal `frame`.
-fn in_frame_of(frame: &[DVec3; 3], d: DVec3) -> DVec3 {
+pub(crate) fn in_frame_of(frame: &[DVec3; 3], d: DVec3) -> DVec3 {
     DVec3::new(frame[0].dot(d), frame[1].dot(d), frame[2].dot(d))
 }
 

@@ -21,7 +21,7 @@
 //! fairing's room of the pinch's dual voxel, and holds the placed pinches
 //! there.
 
-use super::fidelity::FidelityBound;
+use super::fidelity::{FidelityBound, in_frame_of};
 use crate::mesh::{Mesh, Topology, VertexKind, vector_area};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -174,13 +174,12 @@ impl VoxelFaces {
             origin,
             squares: Vec::new(),
         };
-        let in_frame = |d: DVec3| DVec3::new(frame[0].dot(d), frame[1].dot(d), frame[2].dot(d));
         let mut squares: Vec<(u64, bool)> = (0..mesh.num_faces())
             .into_par_iter()
             .with_min_len(4096)
             .filter_map(|f| {
                 let face = mesh.face(f);
-                let n = in_frame(vector_area(face, p));
+                let n = in_frame_of(&frame, vector_area(face, p));
                 let len = n.length();
                 let a = n.abs().max_position();
                 if len == 0.0 || (0..3).any(|k| k != a && n[k].abs() > AXIS_TOLERANCE * len) {
@@ -204,12 +203,7 @@ impl VoxelFaces {
     /// Grid coordinates of `p`: spacings along each axis from the origin
     /// node.
     fn grid(&self, p: DVec3) -> DVec3 {
-        let d = p - self.origin;
-        DVec3::new(
-            self.frame[0].dot(d),
-            self.frame[1].dot(d),
-            self.frame[2].dot(d),
-        ) / self.spacing
+        in_frame_of(&self.frame, p - self.origin) / self.spacing
     }
 
     /// Whether a face covers the square at `c` along `axis`, and if so
@@ -454,9 +448,9 @@ mod tests {
     fn a_saddle_of_four_voxels_stays_and_a_line_end_retreats() {
         let saddle = [1.0, 0.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0];
         assert_eq!(half_level(&saddle, 0.5), DVec3::ZERO);
-        // Two voxels touching along an edge end at the corner (voxels 3
-        // and 7 lie on the positive side along z... and 0b111, 0b100):
-        // the level lies along the edge, at the voxel centres' plane.
+        // Two voxels touching along an edge (along z) end at the corner,
+        // both above it: the level lies along the edge, at the voxel
+        // centres' plane.
         let mut end = [0.0; 8];
         end[0b111] = 1.0;
         end[0b100] = 1.0;
