@@ -32,13 +32,17 @@ use rayon::prelude::*;
 /// that is not a voxel face by far more.
 const AXIS_TOLERANCE: f64 = 1e-3;
 
-/// The Gaussian that blurs the mask around a pinch, in voxels (per axis, in
-/// that axis's spacing): it gives each voxel's next neighbour 4% of its
-/// own weight, enough for the next layer to tip a saddle of four voxels and
-/// to turn the level toward where the structure goes on, little enough
-/// that the eight voxels around the corner decide where they agree. The GM
-/// and WM masks' pinches come closest to the truth at 0.4-0.5, farther at
-/// 0.3 and below (`docs/tuning.md`).
+/// The Gaussian that blurs the mask around a pinch, in spacings of the
+/// lattice's finest axis (the same physical width along every axis: across
+/// thick slices the next voxel lies farther away and weighs less). It
+/// gives each voxel's next neighbour along a finest axis 4% of its own
+/// weight, enough for the next layer to tip a saddle of four voxels and to
+/// turn the level toward where the structure goes on, little enough that
+/// the eight voxels around the corner decide where they agree. The GM and
+/// WM masks' pinches come closest to the truth at 0.4-0.5, farther at 0.3
+/// and below; a width per axis in that axis's own spacing took masks of
+/// voxels four times as deep as wide farther from the truth
+/// (`docs/tuning.md`).
 pub const BLUR_SIGMA: f64 = 0.4;
 
 /// Newton steps toward the one-half level; each moves at most a quarter of
@@ -82,6 +86,7 @@ pub fn place_pinches(
         return Vec::new();
     };
     let faces = VoxelFaces::build(mesh, frame, spacing, input[node]);
+    let weights = blur_weights(spacing);
     // Each pinch's level, in spacings along the lattice's axes.
     let levels: Vec<DVec3> = (0..topo.num_vertices())
         .into_par_iter()
@@ -97,7 +102,7 @@ pub fn place_pinches(
             faces
                 .voxels_around(faces.grid(input[v]).round())
                 .map_or(DVec3::ZERO, |block| {
-                    half_level(&blurred_corner(&block), room)
+                    half_level(&blurred_corner(&block, &weights), room)
                 })
         })
         .collect();
@@ -302,20 +307,29 @@ impl VoxelFaces {
     }
 }
 
+/// The blur's weights per axis for the lattice's `spacing`: a voxel's own
+/// and its two next neighbours' along that axis ([`BLUR_SIGMA`], truncated
+/// there: the next ones would weigh less than 1e-5), summing to one.
+fn blur_weights(spacing: DVec3) -> [[f64; 3]; 3] {
+    let finest = spacing.min_element();
+    std::array::from_fn(|k| {
+        let sigma = BLUR_SIGMA * finest / spacing[k];
+        let next = (-0.5 / (sigma * sigma)).exp();
+        [next, 1.0, next].map(|x| x / (1.0 + 2.0 * next))
+    })
+}
+
 /// The eight voxels around a block's centre node ([`VoxelFaces::voxels_around`])
-/// blurred by the Gaussian of [`BLUR_SIGMA`], truncated to each voxel's
-/// next neighbours (the next ones would weigh less than 1e-5); voxel `i`
-/// lies on the positive side of the node along axis `k` when bit `k` of
-/// `i` is set.
-fn blurred_corner(block: &[bool; 64]) -> [f64; 8] {
-    let next = (-0.5 / (BLUR_SIGMA * BLUR_SIGMA)).exp();
-    let w = [next, 1.0, next].map(|x| x / (1.0 + 2.0 * next));
+/// blurred by the separable `weights` ([`blur_weights`]); voxel `i` lies
+/// on the positive side of the node along axis `k` when bit `k` of `i` is
+/// set.
+fn blurred_corner(block: &[bool; 64], weights: &[[f64; 3]; 3]) -> [f64; 8] {
     std::array::from_fn(|i| {
         let centre = [1 + (i & 1), 1 + ((i >> 1) & 1), 1 + ((i >> 2) & 1)];
         let mut sum = 0.0;
-        for (dz, wz) in w.iter().enumerate() {
-            for (dy, wy) in w.iter().enumerate() {
-                for (dx, wx) in w.iter().enumerate() {
+        for (dz, wz) in weights[2].iter().enumerate() {
+            for (dy, wy) in weights[1].iter().enumerate() {
+                for (dx, wx) in weights[0].iter().enumerate() {
                     let (x, y, z) = (centre[0] + dx - 1, centre[1] + dy - 1, centre[2] + dz - 1);
                     if block[block_index(x, y, z)] {
                         sum += wx * wy * wz;
@@ -463,7 +477,8 @@ mod tests {
         let mut block = [false; 64];
         block[block_index(2, 2, 2)] = true;
         block[block_index(1, 1, 2)] = true;
-        let values = blurred_corner(&block);
+        let cubic = blur_weights(DVec3::ONE);
+        let values = blurred_corner(&block, &cubic);
         assert!(trilinear(&values, DVec3::new(0.0, 0.0, 0.5)).0 < 0.5);
         let mut saddle_block = [false; 64];
         for (x, y, z) in [
@@ -476,11 +491,17 @@ mod tests {
         ] {
             saddle_block[block_index(x, y, z)] = true;
         }
-        let q = half_level(&blurred_corner(&saddle_block), 0.5);
+        let q = half_level(&blurred_corner(&saddle_block, &cubic), 0.5);
         assert!(
             q.z.abs() > 0.05 && q.x.abs() < 0.01 && q.y.abs() < 0.01,
             "{q}"
         );
+        // Across slices four times as deep, the layer that tipped it lies
+        // four times as far away: the saddle stays.
+        let deep = blur_weights(DVec3::new(1.0, 1.0, 4.0));
+        assert_eq!(deep[0], cubic[0]);
+        let q = half_level(&blurred_corner(&saddle_block, &deep), 0.5);
+        assert!(q.length() < 1e-3, "{q}");
     }
 
     #[test]
