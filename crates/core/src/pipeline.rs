@@ -431,9 +431,10 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
             params.min_normal_cos(),
         );
         // Where voxels touch only along an edge or at a corner, the shared
-        // corner goes to its mask's one-half level first and stays there:
-        // the relaxation's mean of both sheets' neighbours would pull it
-        // back toward the corner. A pinch already at its level relaxes
+        // corner goes to its mask's one-half level first and stays there
+        // through the relaxation, whose mean of both sheets' neighbours
+        // would pull it back toward the corner (only the sharp-angle fix's
+        // last resort moves it later). A pinch already at its level relaxes
         // with the rest: held where it was it would pin both sheets to the
         // lattice. Like the faired corners, a pinch keeps off the walls of
         // its dual voxel (`FAIRING_ROOM`).

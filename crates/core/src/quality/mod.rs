@@ -5,7 +5,9 @@
 //!
 //! The fixes only move vertices (connectivity never changes), move only
 //! interior vertices (those that move vertices back toward the input, also
-//! the non-manifold vertices the voxel relaxation moved), and keep a move
+//! the non-manifold vertices the voxel relaxation moved; the sharp-angle
+//! fix, once its interior moves are spent, the non-manifold vertices too),
+//! and keep a move
 //! only when it makes nothing worse: no face becomes inverted relative to
 //! the input, no quad becomes twisted, no quad corner divided by the
 //! triangle split opens beyond 160° (or beyond its angle before; the
@@ -14,8 +16,9 @@
 //! split-triangle angle of the affected faces does not shrink (a move that
 //! removes a twisted quad or an inverted face may shrink it: defects
 //! outrank angles). [`improve`] runs them in the order twisted quads, short
-//! edges, sharp angles, inverted faces (then sharp angles once more when
-//! that moved anything), slivers. All are deterministic and independent of
+//! edges, sharp angles (interior vertices, then with the non-manifold ones),
+//! inverted faces (then sharp angles once more when that moved anything),
+//! slivers. All are deterministic and independent of
 //! the number of threads.
 
 #[cfg(test)]
@@ -28,7 +31,7 @@ pub mod sliver;
 pub mod twisted;
 
 pub use inverted::{InvertedStats, fix_inverted_faces};
-pub use sharp_angle::{SharpAngleStats, fix_sharp_angles};
+pub use sharp_angle::{Movers, SharpAngleStats, fix_sharp_angles};
 pub use short_edge::{ShortEdgeStats, fix_short_edges};
 pub use sliver::{SliverStats, fix_slivers};
 pub use twisted::{TwistedStats, fix_twisted_quads};
@@ -94,7 +97,9 @@ pub const SLIVER_FRACTION: f64 = 0.5;
 
 /// Runs the fixes on `positions` (one per vertex, moved in place) with
 /// `input` the input positions (one per vertex, the reference for inverted
-/// faces): twisted quads, then short edges, then sharp angles, then the
+/// faces): twisted quads, then short edges, then sharp angles (moving the
+/// interior vertices, then, for the faces they could not open, the
+/// non-manifold vertices as well: [`Movers`]), then the
 /// folds the sharp-angle fix's single-vertex moves could not open (and, if
 /// that moved a vertex, sharp angles again, its counts added to the
 /// first run's), then the slivers neither could open
@@ -127,7 +132,7 @@ pub fn improve(
         sweeps,
         min_normal_cos,
     );
-    let sharp = |positions: &mut [DVec3]| {
+    let sharp = |positions: &mut [DVec3], movers: Movers| {
         fix_sharp_angles(
             mesh,
             topo,
@@ -137,17 +142,20 @@ pub fn improve(
             params.sharp_angle_deg,
             sweeps,
             min_normal_cos,
+            movers,
         )
     };
-    let mut sharp_angles = sharp(positions);
+    let mut sharp_angles = sharp(positions, Movers::Interior);
+    // Where sheets meet at a vertex, the interior vertices alone may not
+    // open the angles at it (a placed pinch with its relaxed neighbours
+    // leaning toward it): that vertex moves last, and only as needed.
+    if sharp_angles.faces_remaining > 0 {
+        sharp_angles.add(&sharp(positions, Movers::AlsoNonManifold));
+    }
     let inverted = fix_inverted_faces(mesh, topo, positions, input, bound, sweeps);
     if inverted.vertices_moved > 0 {
         // The folds moved back towards the input: clean up their angles.
-        let again = sharp(positions);
-        sharp_angles.moves += again.moves;
-        sharp_angles.rejected += again.rejected;
-        sharp_angles.sweeps += again.sweeps;
-        sharp_angles.faces_remaining = again.faces_remaining;
+        sharp_angles.add(&sharp(positions, Movers::Interior));
     }
     let slivers = fix_slivers(
         mesh,

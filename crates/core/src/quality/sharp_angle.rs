@@ -47,9 +47,22 @@
 //! and writes only its vertex, so the result is that of a Gauss-Seidel
 //! sweep in class order and does not depend on the thread count. The fix
 //! stops after `max_sweeps` sweeps, or when a sweep moves nothing and the
-//! pattern search has had its sweep. Only interior vertices whose faces
-//! form one closed fan move; boundary, non-manifold and isolated vertices
-//! stay.
+//! pattern search has had its sweep. Interior vertices whose faces form
+//! one closed fan move; boundary and isolated vertices stay.
+//!
+//! Non-manifold vertices (where sheets meet at one vertex: voxels touching
+//! along an edge or at a corner, a neuron's junctions) have no fan to
+//! order and no one surface to fit, and a voxel mesh's pinches were placed
+//! at their mask's level ([`crate::smoothing::pinches`]). They move only in
+//! a fix run of their own ([`Movers::AlsoNonManifold`]), after the interior
+//! vertices have done what they could: the faces around a pinch are sharp
+//! when its relaxed neighbours lean toward it, and no move of theirs opens
+//! the angle at the pinch. Their candidates: a pattern of sixteen
+//! directions at four step sizes (up to 0.3 of the mean distance to the
+//! neighbours) across the way the vertex came from its input position,
+//! which for a placed pinch is its level's normal, so the pattern keeps it
+//! on the level to first order; then the way to its neighbours' mean, in
+//! tenths. A vertex still at its input position tries the second only.
 
 use super::local::{
     LocalSurface, MoveTester, Verdict, angle_based_target, face_state, has_repeated_corner,
@@ -80,11 +93,47 @@ pub struct SharpAngleStats {
     pub faces_remaining: u64,
 }
 
+impl SharpAngleStats {
+    /// Adds a later run's counts to these; the faces remaining are the
+    /// later run's.
+    pub fn add(&mut self, later: &SharpAngleStats) {
+        self.moves += later.moves;
+        self.rejected += later.rejected;
+        self.sweeps += later.sweeps;
+        self.faces_remaining = later.faces_remaining;
+    }
+}
+
+/// Which vertices a fix run may move.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Movers {
+    /// Interior vertices (one closed fan) only.
+    #[default]
+    Interior,
+    /// Interior and non-manifold vertices (see the module docs).
+    AlsoNonManifold,
+}
+
+/// The step sizes of a non-manifold vertex's pattern across the way it
+/// came, in mean distances to its neighbours: the interior vertices'
+/// pattern search goes to half the link radius, a pinch's level holds only
+/// near it.
+const ACROSS_STEPS: [f64; 4] = [0.05, 0.1, 0.2, 0.3];
+
+/// Directions of a non-manifold vertex's pattern across the way it came.
+const ACROSS_DIRECTIONS: usize = 16;
+
+/// Steps along the way from a non-manifold vertex to its neighbours' mean,
+/// as fractions of it: the shortest that opens its faces is taken.
+const TOWARD_MEAN_STEPS: usize = 10;
+
 /// Scratch buffers for relocating vertices.
 #[derive(Debug, Default)]
 pub(crate) struct Relocator {
     /// [`LocalSurface::at`]'s facing rule.
     pub min_normal_cos: f64,
+    /// Which vertices it moves.
+    movers: Movers,
     ring: Vec<u32>,
     link: Vec<u32>,
     targets: Vec<(f64, f64)>,
@@ -126,6 +175,11 @@ impl Relocator {
         }
     }
 
+    /// The same relocator, moving `movers`.
+    pub fn moving(self, movers: Movers) -> Relocator {
+        Relocator { movers, ..self }
+    }
+
     /// The same relocator, refusing the angle-only moves that take a face
     /// the input already had sharper than the angle of cosine `cos_guard`
     /// below it and below where the face was ([`MoveTester::guarding`]).
@@ -137,7 +191,9 @@ impl Relocator {
     }
 
     /// The best of interior vertex `v`'s candidate positions if that
-    /// improves its faces (`positions` is not changed). A face needs work
+    /// improves its faces (`positions` is not changed; a non-manifold `v`
+    /// has its own candidates when the relocator moves such vertices, and
+    /// any other kind is skipped). A face needs work
     /// when it is inverted, twisted, or its smallest split-triangle angle
     /// has a cosine above `cos_goal`; a vertex none of whose faces needs
     /// work is skipped. The first candidate that leaves no defect and every
@@ -155,6 +211,10 @@ impl Relocator {
         cos_floor: f64,
         thorough: bool,
     ) -> Visit {
+        if topo.kind(v) == VertexKind::NonManifold && self.movers == Movers::AlsoNonManifold {
+            return self
+                .relocate_non_manifold(mesh, topo, v, positions, input, cos_goal, cos_floor);
+        }
         if topo.kind(v) != VertexKind::Interior {
             return Visit::Skipped;
         }
@@ -216,6 +276,63 @@ impl Relocator {
         }
         self.targets = targets;
         self.off_surface = off_surface;
+        self.candidates = candidates;
+        best.map_or(Visit::Stuck, Visit::Moved)
+    }
+
+    /// The best of non-manifold vertex `v`'s candidates (see the module
+    /// docs) if that improves its faces, as [`Relocator::relocate`] does for
+    /// an interior vertex.
+    #[allow(clippy::too_many_arguments)]
+    fn relocate_non_manifold(
+        &mut self,
+        mesh: &Mesh,
+        topo: &Topology,
+        v: usize,
+        positions: &[DVec3],
+        input: &[DVec3],
+        cos_goal: f64,
+        cos_floor: f64,
+    ) -> Visit {
+        let neighbours = topo.neighbors(v);
+        if neighbours.is_empty() {
+            return Visit::Skipped;
+        }
+        self.tester
+            .begin(mesh, topo, &[v], positions, input, cos_goal);
+        if !self.tester.needs_work() {
+            return Visit::Skipped;
+        }
+        let p = positions[v];
+        let count = neighbours.len() as f64;
+        let mean = neighbours
+            .iter()
+            .map(|&w| positions[w as usize])
+            .sum::<DVec3>()
+            / count;
+        let reach = neighbours
+            .iter()
+            .map(|&w| positions[w as usize].distance(p))
+            .sum::<f64>()
+            / count;
+        let mut candidates = std::mem::take(&mut self.candidates);
+        candidates.clear();
+        let came = (p - input[v]).normalize_or_zero();
+        if came != DVec3::ZERO {
+            let e1 = came.any_orthonormal_vector();
+            let e2 = came.cross(e1);
+            for step in ACROSS_STEPS {
+                for k in 0..ACROSS_DIRECTIONS {
+                    let turn = k as f64 * std::f64::consts::TAU / ACROSS_DIRECTIONS as f64;
+                    let (sin, cos) = turn.sin_cos();
+                    candidates.push(p + (e1 * cos + e2 * sin) * (step * reach));
+                }
+            }
+        }
+        for k in 1..=TOWARD_MEAN_STEPS {
+            candidates.push(p.lerp(mean, k as f64 / TOWARD_MEAN_STEPS as f64));
+        }
+        let best = self.best_of(mesh, v, &candidates, positions, cos_floor);
         self.candidates = candidates;
         best.map_or(Visit::Stuck, Visit::Moved)
     }
@@ -287,6 +404,7 @@ pub fn fix_sharp_angles(
     sharp_angle_deg: f64,
     max_sweeps: u32,
     min_normal_cos: f64,
+    movers: Movers,
 ) -> SharpAngleStats {
     let cos_limit = sharp_angle_deg.to_radians().cos();
     let cos_guard = (super::SLIVER_FRACTION * sharp_angle_deg)
@@ -312,8 +430,20 @@ pub fn fix_sharp_angles(
     };
     // The mesh's smallest angle now: no move may go below it.
     let cos_floor = bad_faces.iter().map(|b| b.1).fold(cos_limit, f64::max);
-    let bad_faces: Vec<u32> = bad_faces.into_iter().map(|b| b.0).collect();
-    let mut visit = corners_of(mesh, topo, &bad_faces);
+    // A run that may move non-manifold vertices starts at their faces: the
+    // others had the interior run.
+    let bad_faces: Vec<u32> = bad_faces
+        .into_iter()
+        .map(|b| b.0)
+        .filter(|&f| {
+            movers == Movers::Interior
+                || mesh
+                    .face(f as usize)
+                    .iter()
+                    .any(|&v| topo.kind(v as usize) == VertexKind::NonManifold)
+        })
+        .collect();
+    let mut visit = corners_of(mesh, topo, &bad_faces, movers);
     let mut colouring = Colouring::new(mesh.num_vertices());
     let mut stuck: Vec<u32> = Vec::new();
     let mut moved: Vec<u32> = Vec::new();
@@ -329,7 +459,11 @@ pub fn fix_sharp_angles(
                 .par_iter()
                 .with_min_len(64)
                 .map_init(
-                    || Relocator::new(min_normal_cos, bound).guarding(cos_guard),
+                    || {
+                        Relocator::new(min_normal_cos, bound)
+                            .guarding(cos_guard)
+                            .moving(movers)
+                    },
                     |r, &v| {
                         let thorough = previously_stuck.binary_search(&v).is_ok();
                         r.relocate(
@@ -374,18 +508,22 @@ pub fn fix_sharp_angles(
             .into_par_iter()
             .filter(|&f| needs_work(mesh.face(f as usize), p, input, cos_limit))
             .collect();
-        visit = corners_of(mesh, topo, &faces);
+        visit = corners_of(mesh, topo, &faces, movers);
     }
     stats.faces_remaining = count_sharp(mesh, positions, cos_limit);
     stats
 }
 
-/// Interior corners of `faces`, ascending, each once.
-fn corners_of(mesh: &Mesh, topo: &Topology, faces: &[u32]) -> Vec<u32> {
+/// The corners of `faces` that `movers` may move, ascending, each once.
+fn corners_of(mesh: &Mesh, topo: &Topology, faces: &[u32], movers: Movers) -> Vec<u32> {
     let mut out: Vec<u32> = faces
         .iter()
         .flat_map(|&f| mesh.face(f as usize).iter().copied())
-        .filter(|&v| topo.kind(v as usize) == VertexKind::Interior)
+        .filter(|&v| match topo.kind(v as usize) {
+            VertexKind::Interior => true,
+            VertexKind::NonManifold => movers == Movers::AlsoNonManifold,
+            _ => false,
+        })
         .collect();
     out.sort_unstable();
     out.dedup();
@@ -494,6 +632,17 @@ mod tests {
     use crate::report::measure_stage;
     use crate::shapes::CENTER_OFFSET;
 
+    /// The fix at a 20 degree threshold, 10 sweeps, no bound.
+    fn fix_at_20(
+        m: &Mesh,
+        t: &Topology,
+        p: &mut [DVec3],
+        input: &[DVec3],
+        movers: Movers,
+    ) -> SharpAngleStats {
+        fix_sharp_angles(m, t, p, input, None, 20.0, 10, 0.5, movers)
+    }
+
     #[test]
     fn a_sliver_in_a_grid_opens_up() {
         let m = grid(5);
@@ -503,7 +652,7 @@ mod tests {
         // Vertex (2,2) dragged next to (3,2): slivers all around it.
         p[at(5, 2, 2)] = DVec3::new(2.9, 2.05, 0.0);
         assert!(min_split_angle(&m, &p, None) < 5.0);
-        let stats = fix_sharp_angles(&m, &t, &mut p, &input, None, 20.0, 10, 0.5);
+        let stats = fix_at_20(&m, &t, &mut p, &input, Movers::Interior);
         assert!(stats.faces_found > 0 && stats.moves > 0);
         assert_eq!(stats.faces_remaining, 0);
         assert!(min_split_angle(&m, &p, None) >= 20.0 - 1e-9);
@@ -530,7 +679,7 @@ mod tests {
         assert!(worst_before < 10.0, "risers are slivers: {worst_before}");
         let all_before = min_split_angle(&m, &flat, None);
         let mut p = flat.clone();
-        fix_sharp_angles(&m, &t, &mut p, input, None, 20.0, 20, 0.5);
+        fix_sharp_angles(&m, &t, &mut p, input, None, 20.0, 20, 0.5, Movers::Interior);
         let worst_after = min_split_angle(&m, &p, Some(&inner));
         assert!(worst_after > 15.0, "inner faces now {worst_after}");
         assert!(min_split_angle(&m, &p, None) >= all_before);
@@ -551,7 +700,7 @@ mod tests {
         assert!(before.triangle_angles.below_15 > 0 && before.inverted_faces > 0);
         let mut p = projected.clone();
         fix_twisted_quads(&m, &t, &mut p, input, None, 10, 0.5);
-        let stats = fix_sharp_angles(&m, &t, &mut p, input, None, 20.0, 10, 0.5);
+        let stats = fix_at_20(&m, &t, &mut p, input, Movers::Interior);
         assert_eq!(stats.faces_remaining, 0, "{stats:?}");
         let after = measure_stage(&m, &t, &p, input, None, 0.2);
         assert_eq!(after.triangle_angles.below_15, 0);
@@ -581,7 +730,17 @@ mod tests {
                 .unwrap()
                 .install(|| {
                     let mut p = projected.clone();
-                    let s = fix_sharp_angles(&m, &t, &mut p, m.positions(), None, 25.0, 10, 0.5);
+                    let s = fix_sharp_angles(
+                        &m,
+                        &t,
+                        &mut p,
+                        m.positions(),
+                        None,
+                        25.0,
+                        10,
+                        0.5,
+                        Movers::Interior,
+                    );
                     (p, s)
                 })
         };
@@ -590,6 +749,51 @@ mod tests {
         assert_eq!(s1, s3);
         assert!(p1 == p3, "positions differ between 1 and 3 threads");
         assert!(s1.moves > 0);
+    }
+
+    #[test]
+    fn a_vertex_where_two_sheets_meet_moves_only_when_allowed_and_opens_its_angles() {
+        // Two hexagonal discs, one in the plane z = 0 and one in x = 0,
+        // share their centre (a non-manifold vertex); their rims are
+        // boundaries, so only the centre can open the angles it closed by
+        // coming most of the way to the rims.
+        let mut input = vec![DVec3::ZERO];
+        let mut faces = Vec::new();
+        for disc in 0..2u32 {
+            let first = input.len() as u32;
+            for k in 0..6 {
+                let turn = (60.0 * k as f64 + 30.0 * disc as f64).to_radians();
+                let (sin, cos) = turn.sin_cos();
+                input.push(if disc == 0 {
+                    DVec3::new(cos, sin, 0.0)
+                } else {
+                    DVec3::new(0.0, cos, sin)
+                });
+            }
+            for k in 0..6 {
+                faces.push(vec![0, first + k, first + (k + 1) % 6]);
+            }
+        }
+        let m = Mesh::from_polygons(input.clone(), &faces).expect("two discs");
+        let t = Topology::build(&m);
+        assert_eq!(t.kind(0), VertexKind::NonManifold);
+        let mut start = input.clone();
+        start[0] = DVec3::new(0.0, 0.82, 0.0);
+        let before = min_split_angle(&m, &start, None);
+        assert!(before < 10.0, "{before}");
+
+        let mut p = start.clone();
+        let stats = fix_at_20(&m, &t, &mut p, &input, Movers::Interior);
+        assert_eq!(p, start);
+        assert_eq!(stats.moves, 0);
+
+        let mut p = start.clone();
+        let stats = fix_at_20(&m, &t, &mut p, &input, Movers::AlsoNonManifold);
+        let after = min_split_angle(&m, &p, None);
+        assert!(stats.moves > 0 && after >= 20.0, "{after}");
+        // The shortest step that opens them, not all the way back.
+        assert!(p[0].y > 0.1, "{}", p[0]);
+        assert!(p[1..] == start[1..]);
     }
 
     #[test]

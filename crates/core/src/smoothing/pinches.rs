@@ -19,7 +19,9 @@
 //! edge from a gap, which their eight voxels alone cannot (a saddle). The
 //! pipeline does this before the staircase relaxation, within the lattice
 //! fairing's room of the pinch's dual voxel, and holds the placed pinches
-//! there.
+//! there; only the sharp-angle fix moves them later, when the interior
+//! vertices cannot open the angles at them, and across their level first
+//! ([`crate::quality::sharp_angle`]).
 
 use super::fidelity::{FidelityBound, in_frame_of};
 use crate::mesh::{Mesh, Topology, VertexKind, vector_area};
