@@ -7,19 +7,17 @@
 //! interior vertices (those that move vertices back toward the input, also
 //! the non-manifold vertices the voxel relaxation moved; the sharp-angle
 //! fix, once its interior moves are spent, the non-manifold vertices too),
-//! and keep a move
-//! only when it makes nothing worse: no face becomes inverted relative to
-//! the input, no quad becomes twisted, no quad corner divided by the
-//! triangle split opens beyond 160° (or beyond its angle before; the
-//! twisted-quad fix's last resort allows 170°), no
-//! defect count grows, and the smallest
-//! split-triangle angle of the affected faces does not shrink (a move that
-//! removes a twisted quad or an inverted face may shrink it: defects
-//! outrank angles). [`improve`] runs them in the order twisted quads, short
-//! edges, sharp angles (interior vertices, then with the non-manifold ones),
-//! inverted faces (then sharp angles once more when that moved anything),
-//! slivers. All are deterministic and independent of
-//! the number of threads.
+//! and keep a move only when it makes nothing worse: no face becomes
+//! inverted relative to the input, no quad becomes twisted, no quad corner
+//! divided by the triangle split opens beyond 160° (or beyond its angle
+//! before; the twisted-quad fix's last resort allows 170°), no defect
+//! count grows, and the smallest split-triangle angle of the affected
+//! faces does not shrink (a move that removes a twisted quad or an
+//! inverted face may shrink it: defects outrank angles). [`improve`] runs
+//! them in the order twisted quads, short edges, sharp angles (interior
+//! vertices, then with the non-manifold ones), inverted faces (then sharp
+//! angles once more when that moved anything), slivers. All are
+//! deterministic and independent of the number of threads.
 
 #[cfg(test)]
 pub(crate) mod fixtures;
