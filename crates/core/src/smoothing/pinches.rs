@@ -66,9 +66,9 @@ pub const LINE_KEEP: f64 = 0.44;
 /// where the pinch at an edge's other end comes toward it too, the two
 /// keep [`LINE_KEEP`] of the edge. A vertex whose voxels the faces do not
 /// give consistently (not a lattice corner, an open rim) stays. Returns
-/// which vertices moved (empty when the mesh has no lattice or no pinch). Deterministic and parallel
-/// per vertex; the faces are sorted once, and each pinch looks up the 144
-/// squares between its 64 voxels.
+/// which vertices moved (empty when the mesh has no lattice or no pinch).
+/// Deterministic and parallel per vertex; the faces are sorted once, and
+/// each pinch looks up the 144 squares between its 64 voxels.
 pub fn place_pinches(
     mesh: &Mesh,
     topo: &Topology,
@@ -118,8 +118,9 @@ pub fn place_pinches(
                 return false;
             }
             let mut q = level;
+            let here = faces.grid(input[v]);
             for &j in topo.neighbors(v) {
-                let e = faces.grid(input[j as usize]) - faces.grid(input[v]);
+                let e = faces.grid(input[j as usize]) - here;
                 let a = e.abs().max_position();
                 let (toward, length) = (e[a].signum(), e[a].abs());
                 let both_come = levels[j as usize][a] * toward < 0.0;
