@@ -3,7 +3,7 @@ folder resampled on seeded shifted and rotated grids, thresholded, meshed as
 voxel quads and as marching cubes, smoothed by meshsmooth and by the peers
 over a sweep of their settings, and measured against the same truth.
 
-    python3 eval/real_placements.py [--data DIR] [--placements N] [--only NAME,...] [--params FILE.json] [--kinds vox,mc] [--level L]
+    python3 eval/real_placements.py [--data DIR] [--placements N] [--first SEED] [--only NAME,...] [--params FILE.json] [--kinds vox,mc] [--level L]
 
 A mask is where the trilinearly interpolated map exceeds 127.5 at a voxel
 centre, and the truth is the surface where it equals 127.5 (meshmetrics.Truth),
@@ -192,6 +192,12 @@ def main():
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "bio"))
     ap.add_argument("--binary", default=str(ROOT / "target" / "release" / "meshsmooth"))
     ap.add_argument("--placements", type=int, default=4)
+    ap.add_argument(
+        "--first",
+        type=int,
+        default=0,
+        help="the first placement's seed (default 0, the map's own grid): --first 8 runs seeds no setting was tuned on",
+    )
     ap.add_argument("--only", default="", help="comma-separated map names: " + ",".join(MAPS))
     ap.add_argument("--no-peers", action="store_true", help="meshsmooth alone")
     ap.add_argument("--params", help="meshsmooth parameter file (the HTTP API's params object), to compare settings")
@@ -225,7 +231,7 @@ def main():
         print(f"\n## {name}: truth RMS in mm (ours, best peer setting, ratio), flipped/twisted/min angle of ours")
         print("| placement | mesh | vertices | input | meshsmooth | best peer | ratio | setting | ours flipped/twisted/min angle/max move (voxels of the mesh) |")
         print("|---|---|---|---|---|---|---|---|---|")
-        for seed in range(args.placements):
+        for seed in range(args.first, args.first + args.placements):
             rot, offset = placement(seed, not args.no_rotation)
             mask, to_data = resampled_mask(data, rot, offset, spacing, args.level)
             qv, qf = voxel_quads(mask)

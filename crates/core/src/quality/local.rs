@@ -691,6 +691,19 @@ impl LocalSurface {
         self.frame.to_world(DVec3::new(x, y, z))
     }
 
+    /// The point above the tangent-plane point `(x, y)` of the fitted
+    /// surface moved along the normal to pass through the vertex itself:
+    /// the fit's shape without its offset at the vertex, so that a
+    /// tangent step keeps the vertex on the surface it is on rather than
+    /// also taking a smoothing step toward the fit.
+    pub fn point_through_vertex(&self, x: f64, y: f64) -> DVec3 {
+        let g = match self.fit.kind {
+            FitKind::Fixed => 0.0,
+            FitKind::Cubic | FitKind::Quadric | FitKind::Plane => self.fit.coeffs[5],
+        };
+        self.point(x, y) - g * self.frame.w
+    }
+
     /// Tangent-plane coordinates `(x, y)` of a world point.
     pub fn tangent(&self, q: DVec3) -> (f64, f64) {
         let l = self.frame.to_local(q);

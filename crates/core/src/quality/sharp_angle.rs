@@ -1,7 +1,7 @@
 //! Sharp-angle fix (paper section 2.4; algorithm notes section 8):
 //! angle-based smoothing (Zhou & Shimada 2000) of the vertices of faces
-//! with a split-triangle angle below the threshold, each moved vertex then
-//! brought back onto its local fitted quadric so the shape is kept.
+//! with a split-triangle angle below the threshold, each moved vertex kept
+//! on its local surface so the shape is kept.
 //!
 //! For a vertex `v` with its ordered link `l_0 .. l_{m-1}` (the other
 //! corners of its faces, around `v`), the angle-based target is the mean
@@ -10,11 +10,19 @@
 //! order: that target and the link centroid at full, half and quarter step,
 //! the vertex's own foot point (no tangent step), and, for each split
 //! triangle at `v` inverted relative to the input, the tangent step that
-//! turns it back. Each is a tangent-plane point lifted onto the quadric
-//! fitted to `v`'s 2-ring (section 3) in the frame of its current position
-//! and normal. Last come the exact steps that turn an inverted triangle
-//! back by moving off the surface, allowed up to a twentieth of the mean
-//! distance to the link (a face standing almost perpendicular to its input
+//! turns it back. Each is a tangent-plane point lifted, first, onto the
+//! quadric fitted to `v`'s 2-ring (section 3) in the frame of its current
+//! position and normal, moved along the normal to pass through `v` (so the
+//! foot point is `v` itself); then onto the fitted quadric itself, as the
+//! paper projects. The fit need not pass through `v`: its offset there is
+//! one more smoothing step, which on the real masks took the fixed
+//! vertices off the surface the smoothing settled on by about half their
+//! tangent move (`docs/tuning.md`). The lift through `v` keeps the fit's
+//! slope and bending and leaves the height to the smoothing; the fit's
+//! offset is the fallback for faces that no move along the surface opens.
+//! Last come the exact steps that turn an inverted triangle back by
+//! moving off the surface, allowed up to a twentieth of the mean distance
+//! to the link (a face standing almost perpendicular to its input
 //! orientation turns only that way).
 //!
 //! A candidate counts only when it improves on the current position: no
@@ -33,7 +41,7 @@
 //! largest smallest angle); otherwise `v` stays. A vertex stuck in one
 //! sweep and visited again in the next also tries a pattern search: sixteen
 //! tangent directions at four step sizes (up to half the link radius),
-//! lifted likewise. (Eight directions at three sizes left two torus faces
+//! each lifted both ways. (Eight directions at three sizes left two torus faces
 //! at 14.5 degrees, stuck in a position no smaller search improved.)
 //!
 //! Order: sweeps of colour classes. Sweep 1 visits the interior corners of
@@ -261,6 +269,13 @@ impl Relocator {
         // Lifted candidates first, then the off-surface ones.
         let mut candidates = std::mem::take(&mut self.candidates);
         candidates.clear();
+        // Along the vertex's own surface first; then onto the fit, whose
+        // offset at the vertex also takes a smoothing step (module docs).
+        candidates.extend(
+            targets
+                .iter()
+                .map(|&(x, y)| surface.point_through_vertex(x, y)),
+        );
         candidates.extend(targets.iter().map(|&(x, y)| surface.point(x, y)));
         candidates.extend_from_slice(&off_surface);
         let mut best = self.best_of(mesh, v, &candidates, positions, cos_floor);
@@ -269,7 +284,9 @@ impl Relocator {
             for step in [0.5, 0.25, 0.1, 0.04] {
                 for k in 0..16 {
                     let (sin, cos) = (k as f64 * std::f64::consts::FRAC_PI_8).sin_cos();
-                    candidates.push(surface.point(step * radius * cos, step * radius * sin));
+                    let (x, y) = (step * radius * cos, step * radius * sin);
+                    candidates.push(surface.point_through_vertex(x, y));
+                    candidates.push(surface.point(x, y));
                 }
             }
             best = self.best_of(mesh, v, &candidates, positions, cos_floor);
@@ -659,6 +676,24 @@ mod tests {
         assert!(p.iter().all(|q| q.z.abs() < 1e-9), "stays on the plane");
         let s = measure_stage(&m, &t, &p, &input, None, 0.2);
         assert_eq!((s.inverted_faces, s.twisted_quads), (0, 0));
+    }
+
+    #[test]
+    fn a_raised_vertex_opens_its_angles_at_its_own_height() {
+        // The smoothing left vertex (3,3) 0.08 above its flat neighbours
+        // and next to (4,3). Its neighbours' fit is the plane z = 0: the
+        // fix opens the slivers without flattening the bump.
+        let m = grid(6);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        let mut p = input.clone();
+        let v = at(6, 3, 3);
+        p[v] = DVec3::new(3.97, 3.02, 0.08);
+        assert!(min_split_angle(&m, &p, None) < 10.0);
+        let stats = fix_at_20(&m, &t, &mut p, &input, Movers::Interior);
+        assert_eq!(stats.faces_remaining, 0, "{stats:?}");
+        assert!(min_split_angle(&m, &p, None) >= 20.0 - 1e-9);
+        assert!((p[v].z - 0.08).abs() < 1e-3, "moved to height {}", p[v].z);
     }
 
     #[test]
