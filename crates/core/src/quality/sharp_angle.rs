@@ -41,8 +41,9 @@
 //! largest smallest angle); otherwise `v` stays. A vertex stuck in one
 //! sweep and visited again in the next also tries a pattern search: sixteen
 //! tangent directions at four step sizes (up to half the link radius),
-//! each lifted both ways. (Eight directions at three sizes left two torus faces
-//! at 14.5 degrees, stuck in a position no smaller search improved.)
+//! each point lifted through `v`, then onto the fit. (Eight directions at
+//! three sizes left two torus faces at 14.5 degrees, stuck in a position
+//! no smaller search improved.)
 //!
 //! Order: sweeps of colour classes. Sweep 1 visits the interior corners of
 //! every face with a sharp angle or an inverted split triangle; each later
