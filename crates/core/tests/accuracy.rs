@@ -266,22 +266,22 @@ fn output_is_identical_with_one_and_two_threads() {
         shapes::sphere_pair(5.0, 0.0),
         0,
     )));
+    let run_with = |m: &Mesh, threads| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| smooth(m))
+    };
+    let bits = |o: &SmoothOutput| -> Vec<u64> {
+        o.positions
+            .iter()
+            .flat_map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+            .collect()
+    };
     for m in [torus, touching] {
-        let run_with = |threads| {
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(threads)
-                .build()
-                .unwrap();
-            pool.install(|| smooth(&m))
-        };
-        let a = run_with(1);
-        let b = run_with(2);
-        let bits = |o: &SmoothOutput| -> Vec<u64> {
-            o.positions
-                .iter()
-                .flat_map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
-                .collect()
-        };
+        let a = run_with(&m, 1);
+        let b = run_with(&m, 2);
         assert_eq!(bits(&a), bits(&b));
         assert_eq!(a.per_vertex.label, b.per_vertex.label);
     }

@@ -34,7 +34,7 @@ pub use short_edge::{ShortEdgeStats, fix_short_edges};
 pub use sliver::{SliverStats, fix_slivers};
 pub use twisted::{TwistedStats, fix_twisted_quads};
 
-use crate::mesh::{Mesh, Topology};
+use crate::mesh::{Mesh, Topology, VertexKind};
 use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -146,8 +146,9 @@ pub fn improve(
     let mut sharp_angles = sharp(positions, Movers::Interior);
     // Where sheets meet at a vertex, the interior vertices alone may not
     // open the angles at it (a placed pinch with its relaxed neighbours
-    // leaning toward it): that vertex moves last, and only as needed.
-    if sharp_angles.faces_remaining > 0 {
+    // leaning toward it): that vertex moves last, and only as needed (a
+    // mesh without one has nothing for that run to start from).
+    if sharp_angles.faces_remaining > 0 && topo.kinds().contains(&VertexKind::NonManifold) {
         sharp_angles.add(&sharp(positions, Movers::AlsoNonManifold));
     }
     let inverted = fix_inverted_faces(mesh, topo, positions, input, bound, sweeps);
