@@ -187,7 +187,12 @@ def is_closed(edges_count):
 class Truth:
     """The surface where a probability map, trilinearly interpolated, equals
     `level`: marching cubes of the map resampled `upsample` times finer,
-    queried with exact point-to-triangle distances."""
+    queried with exact point-to-triangle distances. The fine map is made and
+    meshed in slabs of `SLAB` voxels along the first axis, so a whole-brain
+    map at 1 mm needs no more memory than a slab of it (the slabs share
+    their boundary planes, and marching cubes meshes each cell once)."""
+
+    SLAB = 16
 
     def __init__(self, nifti_path, level=127.5, upsample=4):
         import nibabel as nib
@@ -200,12 +205,25 @@ class Truth:
         self.affine = img.affine
         self.shape = data.shape
         axes = [np.arange(0, s - 1 + 1e-9, 1.0 / upsample) for s in data.shape]
-        grid = np.meshgrid(*axes, indexing="ij")
-        fine = map_coordinates(data, [g.ravel() for g in grid], order=1).reshape(grid[0].shape)
-        # Pad with the outside value so the truth closes at the volume's edge.
-        fine = np.pad(fine, 1, constant_values=0.0)
-        v, f, _, _ = marching_cubes(fine, level)
-        v = (v - 1.0) / upsample
+        verts, faces, count = [], [], 0
+        starts = list(range(0, len(axes[0]) - 1, self.SLAB * upsample))
+        for k, start in enumerate(starts):
+            stop = min(start + self.SLAB * upsample, len(axes[0]) - 1)
+            grid = np.meshgrid(axes[0][start : stop + 1], axes[1], axes[2], indexing="ij")
+            fine = map_coordinates(data, [g.ravel() for g in grid], order=1).reshape(grid[0].shape)
+            # Pad with the outside value so the truth closes at the volume's
+            # edge: every side of the first axis's end slabs, the others'
+            # always.
+            first, last = k == 0, k == len(starts) - 1
+            fine = np.pad(fine, ((int(first), int(last)), (1, 1), (1, 1)), constant_values=0.0)
+            if fine.max() <= level or fine.min() > level:
+                continue
+            v, f, _, _ = marching_cubes(fine, level)
+            v = (v - [int(first) - start, 1.0, 1.0]) / upsample
+            verts.append(v)
+            faces.append(f + count)
+            count += len(v)
+        v, f = np.concatenate(verts), np.concatenate(faces)
         world = v @ self.affine[:3, :3].T + self.affine[:3, 3]
         self.voxel = float(abs(np.linalg.det(self.affine[:3, :3])) ** (1 / 3))
         scene = o3d.t.geometry.RaycastingScene()

@@ -29,6 +29,10 @@ the mask. The WM crop is measured over the vertices at least 3
 voxels inside its crop, the GM map over all. `--level` thresholds the map
 elsewhere than at 127.5, with the truth at the same level: a segmentation
 drawn thicker (64) or thinner (191) than the data folder's masks.
+`wm_brain` and `gm_brain` are the whole-brain 1 mm maps the data folder's
+were cut from (`python3 eval/fetch_mni152.py` puts them in `eval/.mni152`):
+at placement 0 their masks are the issue's held-out 1 mm white- and
+grey-matter masks (314,946 and 534,618 vertices as voxel quads).
 
 For each mesh the table gives meshsmooth at its defaults and the best truth
 RMS any peer setting reaches on that same mesh (and which setting), then the
@@ -65,7 +69,14 @@ MAPS = {
     "gm_thick": ("mni152_gm_2mm_prob.nii.gz", None, (0.5, 0.5, 1.25)),
     "wm_axial": ("mni152_wm_crop48_1mm_prob.nii.gz", 3, (0.5, 0.5, 3.0)),
     "wm_4mm": ("mni152_wm_crop48_1mm_prob.nii.gz", 3, (1.0, 1.0, 4.0)),
+    # The whole-brain maps of `fetch_mni152.py` (in `--mni152`): at placement
+    # 0 their masks are the issue's held-out 1 mm masks.
+    "wm_brain": ("mni_icbm152_wm_tal_nlin_sym_09a_converted.nii.gz", None, (1.0, 1.0, 1.0)),
+    "gm_brain": ("mni_icbm152_gm_tal_nlin_sym_09a_converted.nii.gz", None, (1.0, 1.0, 1.0)),
 }
+# Maps looked for in `--mni152` instead of `--data`; not run unless named in
+# `--only` (each mesh has 315k-535k vertices; the peers' sweep takes minutes).
+WHOLE_BRAIN = ("wm_brain", "gm_brain")
 LEVEL = 127.5
 
 
@@ -192,6 +203,7 @@ def truth_rms(truth, verts, margin):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "bio"))
+    ap.add_argument("--mni152", default=str(ROOT / "eval" / ".mni152"), help="fetch_mni152.py's folder")
     ap.add_argument("--binary", default=str(ROOT / "target" / "release" / "meshsmooth"))
     ap.add_argument("--placements", type=int, default=4)
     ap.add_argument(
@@ -223,9 +235,9 @@ def main():
     kinds = args.kinds.split(",")
     sweep = {} if args.no_peers else peers()
     for name, (prob, margin, spacing) in MAPS.items():
-        if args.only and name not in args.only.split(","):
+        if (args.only or name in WHOLE_BRAIN) and name not in args.only.split(","):
             continue
-        path = os.path.join(args.data, prob)
+        path = os.path.join(args.mni152 if name in WHOLE_BRAIN else args.data, prob)
         img = nib.load(path)
         data = np.asarray(img.dataobj, dtype=np.float64)
         truth = mm.Truth(path, level=args.level)

@@ -1,0 +1,52 @@
+"""The whole-brain MNI152 white- and grey-matter probability maps at 1 mm,
+from the nilearn wheel on PyPI (the data folder holds a 48-voxel crop of the
+first and a 2 mm block mean of the second), for `real_placements.py --only
+wm_brain,gm_brain`: the masks `prob > 127.5` at the maps' own grid are the
+issue's held-out 1 mm masks (315k and 535k vertices as voxel quads), and the
+maps' level sets their truth.
+
+    python3 eval/fetch_mni152.py [--dest eval/.mni152]
+
+The maps are MNI ICBM152 2009 (c) McConnell Brain Imaging Centre, shipped in
+nilearn (BSD-3); they are data for measuring, not part of the repository
+(`eval/.mni152/` is ignored by git).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import subprocess
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+WHEEL = "nilearn==0.14.1"
+MAPS = [
+    "mni_icbm152_wm_tal_nlin_sym_09a_converted.nii.gz",
+    "mni_icbm152_gm_tal_nlin_sym_09a_converted.nii.gz",
+]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--dest", default=str(ROOT / "eval" / ".mni152"))
+    args = ap.parse_args()
+    dest = Path(args.dest)
+    dest.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        subprocess.run(
+            [sys.executable, "-m", "pip", "download", WHEEL, "--no-deps", "--quiet", "-d", tmp], check=True
+        )
+        (wheel,) = Path(tmp).glob("nilearn-*.whl")
+        with zipfile.ZipFile(wheel) as z:
+            for name in MAPS:
+                data = z.read(f"nilearn/datasets/data/{name}")
+                (dest / name).write_bytes(data)
+                print(f"{dest / name}  sha256 {hashlib.sha256(data).hexdigest()}")
+
+
+if __name__ == "__main__":
+    main()
