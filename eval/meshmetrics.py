@@ -206,7 +206,8 @@ class Truth:
         self.shape = data.shape
         axes = [np.arange(0, s - 1 + 1e-9, 1.0 / upsample) for s in data.shape]
         verts, faces, count = [], [], 0
-        starts = list(range(0, len(axes[0]) - 1, self.SLAB * upsample))
+        # At least one slab: a map one voxel deep is one plane.
+        starts = list(range(0, max(len(axes[0]) - 1, 1), self.SLAB * upsample))
         for k, start in enumerate(starts):
             stop = min(start + self.SLAB * upsample, len(axes[0]) - 1)
             grid = np.meshgrid(axes[0][start : stop + 1], axes[1], axes[2], indexing="ij")
