@@ -24,10 +24,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 WHEEL = "nilearn==0.14.1"
-MAPS = [
-    "mni_icbm152_wm_tal_nlin_sym_09a_converted.nii.gz",
-    "mni_icbm152_gm_tal_nlin_sym_09a_converted.nii.gz",
-]
+# The maps and their SHA-256, so every measurement is of the same data.
+MAPS = {
+    "mni_icbm152_wm_tal_nlin_sym_09a_converted.nii.gz": "382d92812de4744f9c86c7a0e4f680dc317a0a50e4da1f0153618a6798c7b7db",
+    "mni_icbm152_gm_tal_nlin_sym_09a_converted.nii.gz": "97a5ca69bd24db37a9cb7b32525e1733a209af904129bf1cd36da06d24243bed",
+}
 
 
 def main():
@@ -42,10 +43,13 @@ def main():
         )
         (wheel,) = Path(tmp).glob("nilearn-*.whl")
         with zipfile.ZipFile(wheel) as z:
-            for name in MAPS:
+            for name, sha in MAPS.items():
                 data = z.read(f"nilearn/datasets/data/{name}")
+                digest = hashlib.sha256(data).hexdigest()
+                if digest != sha:
+                    sys.exit(f"{name}: sha256 {digest}, expected {sha}")
                 (dest / name).write_bytes(data)
-                print(f"{dest / name}  sha256 {hashlib.sha256(data).hexdigest()}")
+                print(f"{dest / name}  sha256 {digest}")
 
 
 if __name__ == "__main__":
