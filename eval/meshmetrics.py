@@ -194,15 +194,19 @@ class Truth:
 
     SLAB = 16
 
-    def __init__(self, nifti_path, level=127.5, upsample=4):
-        import nibabel as nib
+    def __init__(self, nifti_path=None, level=127.5, upsample=4, data=None, affine=None):
+        """The truth of the map in `nifti_path`, or of the array `data`
+        whose voxel index maps to world coordinates by `affine`."""
         import open3d as o3d
         from scipy.ndimage import map_coordinates
         from skimage.measure import marching_cubes
 
-        img = nib.load(nifti_path)
-        data = np.asarray(img.dataobj, dtype=np.float64)
-        self.affine = img.affine
+        if nifti_path is not None:
+            import nibabel as nib
+
+            img = nib.load(nifti_path)
+            data, affine = np.asarray(img.dataobj, dtype=np.float64), img.affine
+        self.affine = np.asarray(affine, dtype=np.float64)
         self.shape = data.shape
         axes = [np.arange(0, s - 1 + 1e-9, 1.0 / upsample) for s in data.shape]
         verts, faces, count = [], [], 0
