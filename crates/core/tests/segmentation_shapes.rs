@@ -31,7 +31,7 @@ fn check<S: Shape + Copy>(name: &str, shape: S) {
             ("mc", shapes::marching_cubes_mesh(&mask)),
         ] {
             let what = format!("{kind} {name} placement {seed}");
-            check_run(&what, &placed, &mesh, MIN_ANGLE_DEG);
+            check_run(&what, &placed, &mesh);
         }
     }
 }
@@ -52,12 +52,12 @@ fn smoothed_unfolded(what: &str, mesh: &Mesh) -> SmoothOutput {
     out
 }
 
-fn check_run(what: &str, shape: &dyn Shape, mesh: &Mesh, min_angle_deg: f64) {
+fn check_run(what: &str, shape: &dyn Shape, mesh: &Mesh) {
     let out = smoothed_unfolded(what, mesh);
     let fin = out.report.stages.final_stage.as_ref().expect("final stage");
     let smallest = fin.triangle_angles.min_deg.unwrap_or(0.0);
     assert!(
-        smallest >= min_angle_deg,
+        smallest >= MIN_ANGLE_DEG,
         "{what}: smallest angle {smallest}"
     );
     // Voxel corners may go to their dual voxel's corner (sqrt(3)/2 voxel);
