@@ -127,11 +127,8 @@ def measure(verts_in, faces, verts_out, to_body):
     parts = stretches(to_body(verts_in)[tris].mean(axis=1))
     before = slab_volumes(verts_in, tris, to_body, parts)
     after = slab_volumes(verts_out, tris, to_body, parts)
-    d = part_distances(to_body(verts_out))
-    signed = d.min(axis=1)
-    nearest = np.argmin(np.abs(d), axis=1)
-    vertex_parts = stretches(to_body(verts_out))
-    means = [float(signed[vertex_parts[k] & (nearest == k)].mean()) for k in range(len(parts))]
+    signed = part_distances(to_body(verts_out)).min(axis=1)
+    means = [float(signed[p].mean()) for p in stretches(to_body(verts_out))]
     changes = [a / b - 1.0 for a, b in zip(after, before)]
     return changes, means, float(np.sqrt(np.mean(signed**2)))
 
