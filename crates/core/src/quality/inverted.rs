@@ -22,15 +22,12 @@
 //! single-vertex moves that keep the smoothing; on the synthetic shapes it
 //! leaves none, so this fix moves nothing there.
 //!
-//! Order: sequential, clusters by their seed face, the sharpest first (its
-//! smallest split-triangle angle, ties by position), so the order is the
-//! surface's, not the file's: each move's accept-or-refuse is sharp, and
-//! the same mesh numbered another way would otherwise end elsewhere; each
-//! sweep scans the whole mesh for inverted faces;
+//! Order: sequential, clusters in ascending order of their smallest face
+//! (deterministic); each sweep scans the whole mesh for inverted faces;
 //! the fix stops after a sweep that changes nothing, when none is left, or
 //! after `max_sweeps`. Only interior and non-manifold vertices move.
 
-use super::local::{MoveTester, Verdict, is_inverted, max_split_cos};
+use super::local::{MoveTester, Verdict, is_inverted};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
@@ -142,30 +139,12 @@ pub(super) struct Sweeps {
     pub remaining: u64,
 }
 
-/// The `rule.bad` faces at `positions`, sharpest first: by their smallest
-/// split-triangle angle, ascending, ties by centroid (`x`, then `y`, then
-/// `z`) and, for coincident centroids, by index. The order is the
-/// surface's, not the file's (see the module docs).
 fn faces_where(mesh: &Mesh, positions: &[DVec3], rule: &RetreatRule) -> Vec<u32> {
-    let mut keyed: Vec<(f64, DVec3, u32)> = (0..mesh.num_faces() as u32)
+    (0..mesh.num_faces() as u32)
         .into_par_iter()
         .with_min_len(4096)
         .filter(|&f| (rule.bad)(mesh.face(f as usize), positions))
-        .map(|f| {
-            let face = mesh.face(f as usize);
-            let centroid =
-                face.iter().map(|&v| positions[v as usize]).sum::<DVec3>() / face.len() as f64;
-            (max_split_cos(face, positions), centroid, f)
-        })
-        .collect();
-    keyed.par_sort_unstable_by(|a, b| {
-        b.0.total_cmp(&a.0)
-            .then(a.1.x.total_cmp(&b.1.x))
-            .then(a.1.y.total_cmp(&b.1.y))
-            .then(a.1.z.total_cmp(&b.1.z))
-            .then(a.2.cmp(&b.2))
-    });
-    keyed.into_iter().map(|k| k.2).collect()
+        .collect()
 }
 
 /// Moves the clusters of `rule.bad` faces back towards `input` (see the

@@ -55,12 +55,7 @@ pub struct QualityParams {
     /// leaves no angle below 20° at less than half the cost of 25°.
     /// Range 0..=60.
     pub sharp_angle_deg: f64,
-    /// Most sweeps of each fix (the sharp-angle fix's sweeps stop earlier
-    /// when one moves nothing). Default 20: visited sharpest first, the
-    /// angles around a pinch of touching voxels open by turns, a
-    /// neighbour's face becoming the sharpest after each move, which on
-    /// the tangent-sphere family takes more than ten sweeps
-    /// (`docs/tuning.md`). Range 0..=100.
+    /// Most sweeps of the sharp-angle fix. Default 10; range 0..=100.
     pub max_sweeps: u32,
 }
 
@@ -70,7 +65,7 @@ impl Default for QualityParams {
             enabled: true,
             short_edge_fraction: 0.2,
             sharp_angle_deg: 20.0,
-            max_sweeps: 20,
+            max_sweeps: 10,
         }
     }
 }

@@ -49,13 +49,9 @@
 //! every face with a sharp angle or an inverted split triangle; each later
 //! sweep visits those of the faces around the vertices moved (or, after a
 //! sweep that moved nothing, stuck) in the sweep before. A sweep colours
-//! its vertices greedily, sharpest first ([`sharpest_first`]), so that no
-//! two vertices of a class are within two edges of each other or share a
-//! face; the classes run one after another, the vertices of a class in
-//! parallel. Sharpest first, the worst angles open while their neighbours
-//! can still give way; and the order is the surface's, not the file's, so
-//! a mesh numbered another way gets the same classes (each visit's
-//! accept-or-refuse is sharp, and a fix in another order ends elsewhere). A
+//! its vertices greedily in ascending index order so that no two vertices
+//! of a class are within two edges of each other or share a face; the
+//! classes run one after another, the vertices of a class in parallel. A
 //! visit reads only positions within two edges or one face of its vertex
 //! and writes only its vertex, so the result is that of a Gauss-Seidel
 //! sweep in class order and does not depend on the thread count. The fix
@@ -472,7 +468,6 @@ pub fn fix_sharp_angles(
     let mut searched = false;
     while !visit.is_empty() && stats.sweeps < max_sweeps as u64 {
         stats.sweeps += 1;
-        sharpest_first(mesh, topo, positions, &mut visit);
         colouring.colour(mesh, topo, &visit);
         let previously_stuck = std::mem::take(&mut stuck);
         moved.clear();
@@ -537,36 +532,6 @@ pub fn fix_sharp_angles(
     stats
 }
 
-/// Orders `vertices` sharpest first: by the smallest split-triangle angle
-/// of their faces at `positions`, ascending, ties by position (`x`, then
-/// `y`, then `z`) and, for coincident vertices, by index. Only the last
-/// tie depends on how the mesh numbers its vertices.
-fn sharpest_first(mesh: &Mesh, topo: &Topology, positions: &[DVec3], vertices: &mut [u32]) {
-    let mut keyed: Vec<(f64, u32)> = vertices
-        .par_iter()
-        .with_min_len(256)
-        .map(|&v| {
-            let worst = topo
-                .vertex_faces(v as usize)
-                .iter()
-                .map(|&f| max_split_cos(mesh.face(f as usize), positions))
-                .fold(-1.0, f64::max);
-            (worst, v)
-        })
-        .collect();
-    keyed.par_sort_unstable_by(|a, b| {
-        let (p, q) = (positions[a.1 as usize], positions[b.1 as usize]);
-        b.0.total_cmp(&a.0)
-            .then(p.x.total_cmp(&q.x))
-            .then(p.y.total_cmp(&q.y))
-            .then(p.z.total_cmp(&q.z))
-            .then(a.1.cmp(&b.1))
-    });
-    for (v, k) in vertices.iter_mut().zip(keyed) {
-        *v = k.1;
-    }
-}
-
 /// The corners of `faces` that `movers` may move, ascending, each once.
 fn corners_of(mesh: &Mesh, topo: &Topology, faces: &[u32], movers: Movers) -> Vec<u32> {
     let mut out: Vec<u32> = faces
@@ -608,7 +573,7 @@ impl Colouring {
         }
     }
 
-    /// Colours `vertices` greedily in their order.
+    /// Colours `vertices` (ascending) greedily in that order.
     fn colour(&mut self, mesh: &Mesh, topo: &Topology, vertices: &[u32]) {
         for &v in &self.coloured {
             self.colour[v as usize] = NONE;
@@ -645,8 +610,8 @@ impl Colouring {
             }
             self.coloured.push(v);
         }
-        // Group by class, in the list's order within a class; overflow
-        // vertices form classes of one.
+        // Group by class, ascending within a class; overflow vertices form
+        // classes of one.
         self.starts.clear();
         self.starts.push(0);
         let mut acc = 0;

@@ -24,8 +24,7 @@
 //! would have kept). Smoothing is given up only where a sliver was
 //! ([`retreat_sweeps`], the fold fix's mechanism).
 //!
-//! Order: sequential, slivers the sharpest first, ties by position (the
-//! fold fix's order, [`super::inverted`]); each
+//! Order: sequential, slivers in ascending face order (deterministic); each
 //! sweep scans the whole mesh again (a fallback move may close a face next
 //! to its cluster below the floor); the fix stops after a sweep with the
 //! corner subsets that changes nothing, when none is left, or after
