@@ -593,7 +593,7 @@ mod tests {
                 enabled: true,
                 short_edge_fraction: 0.2,
                 sharp_angle_deg: 20.0,
-                max_sweeps: 10
+                max_sweeps: 20
             }
         );
         assert_eq!(

@@ -55,7 +55,10 @@ pub struct QualityParams {
     /// leaves no angle below 20° at less than half the cost of 25°.
     /// Range 0..=60.
     pub sharp_angle_deg: f64,
-    /// Most sweeps of the sharp-angle fix. Default 10; range 0..=100.
+    /// Most sweeps of each fix (a fix stops earlier when a sweep moves
+    /// nothing). Default 20: on the real masks the sharp-angle fix still
+    /// opens faces after ten sweeps, and a shape that needs few sweeps
+    /// makes no more (`docs/tuning.md`). Range 0..=100.
     pub max_sweeps: u32,
 }
 
@@ -65,7 +68,7 @@ impl Default for QualityParams {
             enabled: true,
             short_edge_fraction: 0.2,
             sharp_angle_deg: 20.0,
-            max_sweeps: 10,
+            max_sweeps: 20,
         }
     }
 }
