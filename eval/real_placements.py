@@ -103,12 +103,12 @@ def placement(seed, rotate=True):
     return (rot if rotate else np.eye(3)), rng.uniform(0.0, 1.0, 3)
 
 
-def resampled_mask(data, rot, offset, spacing=(1.0, 1.0, 1.0), level=LEVEL, values=False):
+def resampled_mask(data, rot, offset, spacing=(1.0, 1.0, 1.0), level=LEVEL):
     """The mask of `data`'s trilinear map on the grid rotated by `rot`,
     shifted by `offset` (voxels) about the volume's centre and of `spacing`
     (in `data`'s voxels, per grid axis), thresholded at `level`, and the map
-    from that grid's voxel coordinates to `data`'s (with `values`, also the
-    map's values at that grid's voxel centres)."""
+    from that grid's voxel coordinates to `data`'s, and the map's values at
+    that grid's voxel centres."""
     from scipy.ndimage import map_coordinates
 
     spacing = np.asarray(spacing, dtype=float)
@@ -122,14 +122,12 @@ def resampled_mask(data, rot, offset, spacing=(1.0, 1.0, 1.0), level=LEVEL, valu
 
     grid = np.stack(np.meshgrid(*[np.arange(n) for n in extent], indexing="ij"), -1).reshape(-1, 3)
     sampled = map_coordinates(data, to_data(grid.astype(float)).T, order=1, cval=0.0).reshape(tuple(extent))
-    if values:
-        return sampled > level, to_data, sampled
-    return sampled > level, to_data
+    return sampled > level, to_data, sampled
 
 
 def grid_truth(sampled, to_data, affine, level):
     """The truth of a map sampled on a placement's grid (`resampled_mask`'s
-    `values`): the level of their own trilinear interpolation, what a scanner
+    third value): the level of their own trilinear interpolation, what a scanner
     placed there and thresholding its own map would have."""
     origin = to_data(np.zeros(3))
     linear = np.stack([to_data(np.eye(3)[k]) - origin for k in range(3)], axis=1)
@@ -275,7 +273,7 @@ def main():
         print("|---|---|---|---|---|---|---|---|---|---|")
         for seed in range(args.first, args.first + args.placements):
             rot, offset = placement(seed, not args.no_rotation)
-            mask, to_data, sampled = resampled_mask(data, rot, offset, spacing, args.level, values=True)
+            mask, to_data, sampled = resampled_mask(data, rot, offset, spacing, args.level)
             # Placement 0 samples the map at its own nodes: the same truth.
             here = truth
             if args.grid_truth and seed:

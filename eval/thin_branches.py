@@ -127,8 +127,9 @@ def measure(verts_in, faces, verts_out, to_body):
     parts = stretches(to_body(verts_in)[tris].mean(axis=1))
     before = slab_volumes(verts_in, tris, to_body, parts)
     after = slab_volumes(verts_out, tris, to_body, parts)
-    signed = part_distances(to_body(verts_out)).min(axis=1)
-    means = [float(signed[p].mean()) for p in stretches(to_body(verts_out))]
+    body_out = to_body(verts_out)
+    signed = part_distances(body_out).min(axis=1)
+    means = [float(signed[p].mean()) for p in stretches(body_out)]
     changes = [a / b - 1.0 for a, b in zip(after, before)]
     return changes, means, float(np.sqrt(np.mean(signed**2)))
 
