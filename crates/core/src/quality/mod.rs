@@ -16,7 +16,7 @@
 //! inverted face may shrink it: defects outrank angles). [`improve`] runs
 //! them in the order twisted quads, short edges, sharp angles (interior
 //! vertices, then with the non-manifold ones), inverted faces (then sharp
-//! angles once more when that moved anything), slivers. All are
+//! angles once more, both runs, when that moved anything), slivers. All are
 //! deterministic and independent of the number of threads.
 
 #[cfg(test)]
@@ -146,18 +146,26 @@ pub fn improve(
             movers,
         )
     };
-    let mut sharp_angles = sharp(positions, Movers::Interior);
     // Where sheets meet at a vertex, the interior vertices alone may not
     // open the angles at it (a placed pinch with its relaxed neighbours
     // leaning toward it): that vertex moves last, and only as needed (a
     // mesh without one has nothing for that run to start from).
-    if sharp_angles.faces_remaining > 0 && topo.kinds().contains(&VertexKind::NonManifold) {
-        sharp_angles.add(&sharp(positions, Movers::AlsoNonManifold));
-    }
+    let has_non_manifold = topo.kinds().contains(&VertexKind::NonManifold);
+    let sharp_then_non_manifold = |positions: &mut [DVec3]| {
+        let mut stats = sharp(positions, Movers::Interior);
+        if stats.faces_remaining > 0 && has_non_manifold {
+            stats.add(&sharp(positions, Movers::AlsoNonManifold));
+        }
+        stats
+    };
+    let mut sharp_angles = sharp_then_non_manifold(positions);
     let inverted = fix_inverted_faces(mesh, topo, positions, input, bound, sweeps);
     if inverted.vertices_moved > 0 {
-        // The folds moved back towards the input: clean up their angles.
-        sharp_angles.add(&sharp(positions, Movers::Interior));
+        // The folds moved back towards the input: clean up their angles,
+        // by the same two runs (a fold's cluster may hold sheets' meeting
+        // vertices, and a retreat to the input may bring back an input
+        // sliver that only such a vertex can open).
+        sharp_angles.add(&sharp_then_non_manifold(positions));
     }
     let slivers = fix_slivers(
         mesh,
