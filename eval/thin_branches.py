@@ -7,9 +7,9 @@ parts to the thick ones (a volume restoration with one offset for the
 whole surface does exactly that when the smoothing shrank the thin parts
 more). The issue asks that a neurite neither swells nor collapses.
 
-The shape: a ball (the soma, radius 6 voxels) with three straight
-neurites (capsules of radius 1.5, 2 and 3 voxels, 24 voxels long, along
-three axes of the body), voxelised at seeded placements (a random
+The shape: a ball (the soma, radius 6 voxels) with straight neurites
+(capsules 24 voxels long, of radius 1.5, 2 and 3 voxels unless `--radii`
+says otherwise, each along its own axis of the body), voxelised at seeded placements (a random
 sub-voxel offset and a random rotation per seed), meshed as voxel quads and
 as marching cubes the way `real_placements.py` meshes the real masks, and
 smoothed by meshsmooth and by the peers at their defaults
@@ -30,7 +30,7 @@ For each part it prints, median over the placements:
 
     pip install numpy scipy scikit-image pyvista pymeshlab open3d trimesh
     cargo build --release
-    python3 eval/thin_branches.py [--binary B] [--params FILE.json] [--placements N] [--kinds vox,mc] [--no-peers]
+    python3 eval/thin_branches.py [--binary B] [--params FILE.json] [--placements N] [--kinds vox,mc] [--no-peers] [--radii 1.5,2,3]
 """
 
 from __future__ import annotations
@@ -50,13 +50,18 @@ import real_placements as rp  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 SOMA = 6.0
 LENGTH = 24.0
-# (name, radius, direction in the body's frame): three axes, so no two
-# neurites meet but at the soma.
-NEURITES = [
-    ("neurite r=1.5", 1.5, np.array([1.0, 0.0, 0.0])),
-    ("neurite r=2", 2.0, np.array([0.0, 1.0, 0.0])),
-    ("neurite r=3", 3.0, np.array([-1.0, 0.0, 0.0])),
-]
+# The neurites' directions in the body's frame, one per neurite in the
+# order of `--radii`: distinct axes, so no two neurites meet but at the soma.
+AXES = [np.array(a, dtype=float) for a in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1])]
+# (name, radius, direction): set from `--radii` by `set_neurites`.
+NEURITES = []
+
+
+def set_neurites(radii):
+    NEURITES[:] = [(f"neurite r={r:g}", r, axis) for r, axis in zip(radii, AXES)]
+
+
+set_neurites([1.5, 2.0, 3.0])
 # How far from the soma's surface and from a neurite's tip its measured
 # stretch starts: past the junction's fillet and the tip's cap.
 CLEAR = 3.0
@@ -141,7 +146,16 @@ def main():
     ap.add_argument("--placements", type=int, default=8)
     ap.add_argument("--kinds", default="vox,mc")
     ap.add_argument("--no-peers", action="store_true", help="meshsmooth alone")
+    ap.add_argument(
+        "--radii",
+        default="1.5,2,3",
+        help=f"the neurites' radii in voxels, at most {len(AXES)} (a radius near 0.5 is a one-voxel bridge)",
+    )
     args = ap.parse_args()
+    radii = [float(r) for r in args.radii.split(",")]
+    if not 1 <= len(radii) <= len(AXES):
+        ap.error(f"--radii takes 1 to {len(AXES)} radii")
+    set_neurites(radii)
     tools = {"meshsmooth": cp.meshsmooth(args.binary, ["--params", args.params] if args.params else [])}
     if not args.no_peers:
         tools.update({k: f for k, f in cp.defaults(args.binary).items() if not k.startswith("meshsmooth")})
