@@ -9,10 +9,11 @@ more). The issue asks that a neurite neither swells nor collapses.
 
 The shape: a ball (the soma, radius 6 voxels) with straight neurites
 (capsules 24 voxels long, of radius 1.5, 2 and 3 voxels unless `--radii`
-says otherwise, each along its own axis of the body), voxelised at seeded placements (a random
-sub-voxel offset and a random rotation per seed), meshed as voxel quads and
-as marching cubes the way `real_placements.py` meshes the real masks, and
-smoothed by meshsmooth and by the peers at their defaults
+says otherwise, each along its own axis of the body), voxelised at seeded
+placements (a random sub-voxel offset and a random rotation per seed),
+meshed as voxel quads and as marching cubes the way `real_placements.py`
+meshes the real masks, and smoothed by meshsmooth and by the peers at
+their defaults
 (`compare_peers.defaults`).
 
 For each part it prints, median over the placements:
@@ -52,8 +53,13 @@ SOMA = 6.0
 LENGTH = 24.0
 # The neurites' directions in the body's frame, one per neurite in the
 # order of `--radii`: distinct axes, so no two neurites meet but at the soma.
-AXES = [np.array(a, dtype=float) for a in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1])]
-# (name, radius, direction): set from `--radii` by `set_neurites`.
+AXES = [
+    np.array(a, dtype=float)
+    for a in ([1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1])
+]
+DEFAULT_RADII = (1.5, 2.0, 3.0)
+# (name, radius, direction), one per neurite: set from `--radii` by
+# `set_neurites`.
 NEURITES = []
 
 
@@ -61,7 +67,8 @@ def set_neurites(radii):
     NEURITES[:] = [(f"neurite r={r:g}", r, axis) for r, axis in zip(radii, AXES)]
 
 
-set_neurites([1.5, 2.0, 3.0])
+set_neurites(DEFAULT_RADII)
+
 # How far from the soma's surface and from a neurite's tip its measured
 # stretch starts: past the junction's fillet and the tip's cap.
 CLEAR = 3.0
@@ -148,7 +155,7 @@ def main():
     ap.add_argument("--no-peers", action="store_true", help="meshsmooth alone")
     ap.add_argument(
         "--radii",
-        default="1.5,2,3",
+        default=",".join(f"{r:g}" for r in DEFAULT_RADII),
         help=f"the neurites' radii in voxels, at most {len(AXES)} (a radius near 0.5 is a one-voxel bridge)",
     )
     args = ap.parse_args()
