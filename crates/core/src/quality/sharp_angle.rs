@@ -71,7 +71,10 @@
 //! neighbours) across the way the vertex came from its input position,
 //! which for a placed pinch is its level's normal, so the pattern keeps it
 //! on the level to first order; then the way to its neighbours' mean, in
-//! tenths. A vertex still at its input position tries the second only.
+//! tenths. A vertex still at its input position (a neuron's fin of
+//! coincident faces that the fold fix took back there) tries the second
+//! first, and only when no step of it improves (the mean lies past a face
+//! the step would fold) the same pattern across the way to the mean.
 
 use super::local::{
     LocalSurface, MoveTester, Verdict, angle_based_target, face_state, has_repeated_corner,
@@ -336,21 +339,16 @@ impl Relocator {
         let mut candidates = std::mem::take(&mut self.candidates);
         candidates.clear();
         let came = (p - input[v]).normalize_or_zero();
-        if came != DVec3::ZERO {
-            let e1 = came.any_orthonormal_vector();
-            let e2 = came.cross(e1);
-            for step in ACROSS_STEPS {
-                for k in 0..ACROSS_DIRECTIONS {
-                    let turn = k as f64 * std::f64::consts::TAU / ACROSS_DIRECTIONS as f64;
-                    let (sin, cos) = turn.sin_cos();
-                    candidates.push(p + (e1 * cos + e2 * sin) * (step * reach));
-                }
-            }
-        }
+        push_across(&mut candidates, p, came, reach);
         for k in 1..=TOWARD_MEAN_STEPS {
             candidates.push(p.lerp(mean, k as f64 / TOWARD_MEAN_STEPS as f64));
         }
-        let best = self.best_of(mesh, v, &candidates, positions, cos_floor);
+        let mut best = self.best_of(mesh, v, &candidates, positions, cos_floor);
+        if best.is_none() && came == DVec3::ZERO {
+            candidates.clear();
+            push_across(&mut candidates, p, (mean - p).normalize_or_zero(), reach);
+            best = self.best_of(mesh, v, &candidates, positions, cos_floor);
+        }
         self.candidates = candidates;
         best.map_or(Visit::Stuck, Visit::Moved)
     }
@@ -383,6 +381,24 @@ impl Relocator {
             }
         }
         best.map(|(_, p)| p)
+    }
+}
+
+/// Pushes a non-manifold vertex's pattern at `p` across `axis` (a unit
+/// vector; nothing for zero): [`ACROSS_DIRECTIONS`] directions in the plane
+/// normal to it, at each of the [`ACROSS_STEPS`] times `reach`.
+fn push_across(candidates: &mut Vec<DVec3>, p: DVec3, axis: DVec3, reach: f64) {
+    if axis == DVec3::ZERO {
+        return;
+    }
+    let e1 = axis.any_orthonormal_vector();
+    let e2 = axis.cross(e1);
+    for step in ACROSS_STEPS {
+        for k in 0..ACROSS_DIRECTIONS {
+            let turn = k as f64 * std::f64::consts::TAU / ACROSS_DIRECTIONS as f64;
+            let (sin, cos) = turn.sin_cos();
+            candidates.push(p + (e1 * cos + e2 * sin) * (step * reach));
+        }
     }
 }
 
@@ -830,6 +846,52 @@ mod tests {
         // The shortest step that opens them, not all the way back.
         assert!(p[0].y > 0.1, "{}", p[0]);
         assert!(p[1..] == start[1..]);
+    }
+
+    #[test]
+    fn a_meeting_vertex_at_its_input_steps_across_the_way_to_its_neighbours() {
+        // Two hexagonal fans share their centre (a non-manifold vertex):
+        // one of unit radius in the plane z = 0, one of radius 2.8 in the
+        // plane x = 0 centred at y = 3. The centre sits at its input
+        // position near the first fan's rim, where that fan's face between
+        // its rim vertices at 60 and 120 degrees is a sliver. Its
+        // neighbours' mean lies beyond that rim: every step toward it folds
+        // the sliver, so only a step across that way (out of the plane
+        // z = 0, within the second fan's plane) opens it.
+        let mut input = vec![DVec3::new(0.0, 0.82, 0.0)];
+        let mut faces = Vec::new();
+        for disc in 0..2u32 {
+            let first = input.len() as u32;
+            for k in 0..6 {
+                let turn = (60.0 * k as f64).to_radians();
+                let (sin, cos) = turn.sin_cos();
+                input.push(if disc == 0 {
+                    DVec3::new(cos, sin, 0.0)
+                } else {
+                    DVec3::new(0.0, 3.0 + 2.8 * cos, 2.8 * sin)
+                });
+            }
+            for k in 0..6 {
+                faces.push(vec![0, first + k, first + (k + 1) % 6]);
+            }
+        }
+        let m = Mesh::from_polygons(input.clone(), &faces).expect("two fans");
+        let t = Topology::build(&m);
+        assert_eq!(t.kind(0), VertexKind::NonManifold);
+        let before = min_split_angle(&m, &input, None);
+        assert!(before < 10.0, "{before}");
+
+        let mut p = input.clone();
+        let stats = fix_at_20(&m, &t, &mut p, &input, Movers::AlsoNonManifold);
+        let after = min_split_angle(&m, &p, None);
+        assert!(
+            stats.moves > 0 && after > before + 10.0,
+            "{before} -> {after}"
+        );
+        assert!(p[0].z.abs() > 0.05, "across the way to the mean: {}", p[0]);
+        assert!(p[1..] == input[1..]);
+        let s = measure_stage(&m, &t, &p, &input, None, 0.2);
+        assert_eq!(s.inverted_faces, 0);
     }
 
     #[test]
