@@ -27,6 +27,33 @@ pub fn grid(n: u32) -> Mesh {
     Mesh::from_polygons(p, &f).expect("valid grid")
 }
 
+/// Two hexagonal fans sharing their centre, vertex 0 at `centre` (a
+/// non-manifold vertex, where two sheets meet): one of unit radius in the
+/// plane z = 0 around the origin, one of radius 2.8 in the plane x = 0
+/// around (0, 3, 0). Rim vertices 1-6 and 7-12, at 0, 60, ..., 300
+/// degrees; the rims are boundaries. With the centre near the first fan's
+/// rim between its vertices at 60 and 120 degrees, that face is a sliver,
+/// and the centre's neighbours' mean (0, 1.5, 0) lies beyond that rim.
+pub fn two_fans(centre: DVec3) -> Mesh {
+    let mut positions = vec![centre];
+    let mut faces = Vec::new();
+    for fan in 0..2u32 {
+        let first = positions.len() as u32;
+        for k in 0..6 {
+            let (sin, cos) = (60.0 * k as f64).to_radians().sin_cos();
+            positions.push(if fan == 0 {
+                DVec3::new(cos, sin, 0.0)
+            } else {
+                DVec3::new(0.0, 3.0 + 2.8 * cos, 2.8 * sin)
+            });
+        }
+        for k in 0..6 {
+            faces.push(vec![0, first + k, first + (k + 1) % 6]);
+        }
+    }
+    Mesh::from_polygons(positions, &faces).expect("two fans")
+}
+
 /// A voxel-like staircase, open, normals up: `steps` terraces of `width`
 /// unit quads along x, each one voxel above the last, joined by unit
 /// risers facing -x, `depth` quads along y. Returns the mesh and the

@@ -661,7 +661,7 @@ mod tests {
     use super::*;
     use crate::quality::fix_twisted_quads;
     use crate::quality::fixtures::{
-        at, flattened_staircase, grid, min_split_angle, radially_projected_sphere,
+        at, flattened_staircase, grid, min_split_angle, radially_projected_sphere, two_fans,
     };
     use crate::report::measure_stage;
     use crate::shapes::CENTER_OFFSET;
@@ -850,32 +850,14 @@ mod tests {
 
     #[test]
     fn a_meeting_vertex_at_its_input_steps_across_the_way_to_its_neighbours() {
-        // Two hexagonal fans share their centre (a non-manifold vertex):
-        // one of unit radius in the plane z = 0, one of radius 2.8 in the
-        // plane x = 0 centred at y = 3. The centre sits at its input
-        // position near the first fan's rim, where that fan's face between
-        // its rim vertices at 60 and 120 degrees is a sliver. Its
-        // neighbours' mean lies beyond that rim: every step toward it folds
-        // the sliver, so only a step across that way (out of the plane
-        // z = 0, within the second fan's plane) opens it.
-        let mut input = vec![DVec3::new(0.0, 0.82, 0.0)];
-        let mut faces = Vec::new();
-        for disc in 0..2u32 {
-            let first = input.len() as u32;
-            for k in 0..6 {
-                let turn = (60.0 * k as f64).to_radians();
-                let (sin, cos) = turn.sin_cos();
-                input.push(if disc == 0 {
-                    DVec3::new(cos, sin, 0.0)
-                } else {
-                    DVec3::new(0.0, 3.0 + 2.8 * cos, 2.8 * sin)
-                });
-            }
-            for k in 0..6 {
-                faces.push(vec![0, first + k, first + (k + 1) % 6]);
-            }
-        }
-        let m = Mesh::from_polygons(input.clone(), &faces).expect("two fans");
+        // The centre of `two_fans` sits at its input position near the
+        // first fan's rim, where that fan's face between its rim vertices
+        // at 60 and 120 degrees is a sliver. Its neighbours' mean lies
+        // beyond that rim: every step toward it folds the sliver, so only a
+        // step across that way (out of the plane z = 0, within the second
+        // fan's plane) opens it.
+        let m = two_fans(DVec3::new(0.0, 0.82, 0.0));
+        let input = m.positions().to_vec();
         let t = Topology::build(&m);
         assert_eq!(t.kind(0), VertexKind::NonManifold);
         let before = min_split_angle(&m, &input, None);
