@@ -57,12 +57,6 @@ def rms(tmp, shape, seed, verts, faces):
 VOLUME_PROMISE = 0.02
 
 
-def volume_change(verts, faces, out):
-    tris = mm.triangles(faces)
-    v0 = mm.signed_volume(verts, tris)
-    return (mm.signed_volume(out, tris) - v0) / abs(v0)
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--binary", default=str(ROOT / "target" / "release" / "meshsmooth"))
@@ -104,7 +98,9 @@ def main():
                         r = [rms(tmp, family, s, out, faces) for s, (out, (_, faces)) in enumerate(zip(outs, meshes))]
                     except Exception:  # a peer that refuses a mesh has no row
                         continue
-                    dv = max(abs(volume_change(v, faces, out)) for out, (v, faces) in zip(outs, meshes))
+                    dv = max(
+                        abs(mm.volume_change(v, mm.triangles(faces), out)) for out, (v, faces) in zip(outs, meshes)
+                    )
                     results[tool] = (float(np.median(r)), max(r), dv)
                     if tool == "meshsmooth" and args.no_peers:
                         # Distances are in voxels: the largest move is too.

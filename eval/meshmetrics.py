@@ -180,6 +180,13 @@ def signed_volume(verts, tris):
     return float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0)
 
 
+def volume_change(input_verts, tris, verts):
+    """The relative change of the volume `tris` enclose, `input_verts` to
+    `verts`."""
+    v0 = signed_volume(input_verts, tris)
+    return (signed_volume(verts, tris) - v0) / abs(v0)
+
+
 def is_closed(edges_count):
     return all(c % 2 == 0 for c in edges_count.values())
 
@@ -288,8 +295,7 @@ def measure(input_verts, faces, verts, voxel=None, truth=None, truth_margin=None
     out["max_move"] /= unit
     out["curv_var"] = curvature_variation(verts, faces, adj, edge_len)
     if is_closed(counts):
-        v0 = signed_volume(input_verts, tris)
-        out["volume_change"] = (signed_volume(verts, tris) - v0) / abs(v0)
+        out["volume_change"] = volume_change(input_verts, tris, verts)
     if truth is not None:
         sel = np.ones(n, dtype=bool) if truth_margin is None else truth.inside_crop(verts, truth_margin)
         d = truth.distances(verts[sel])
