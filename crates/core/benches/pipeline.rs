@@ -12,11 +12,20 @@
 //! mesh file and on the r = 110 sphere in turn, 5 runs each, and ends with
 //! the two medians per vertex and their ratio: how much more a real mesh
 //! costs per vertex than the smooth sphere (reading the file not counted).
+//!
+//! `-- limits` times the shapes that test the promise that work is bounded
+//! by the upload's size: a fan of 200 times [`MAX_VALENCE`] triangles and a
+//! polygon of 100 times [`MAX_FACE_CORNERS`] corners (both refused), 300
+//! double cones whose two tips have just under [`MAX_VALENCE`] edges each,
+//! and 300 prisms capped by polygons of just under [`MAX_FACE_CORNERS`]
+//! corners (both smoothed), each with its wall time and stages.
 
+use glam::DVec3;
 use meshsmooth_core::io::{Format, ReadLimits, read};
 use meshsmooth_core::mesh::Mesh;
+use meshsmooth_core::pipeline::{MAX_FACE_CORNERS, MAX_VALENCE};
 use meshsmooth_core::report::QualityReport;
-use meshsmooth_core::{NoProgress, Params, run, shapes};
+use meshsmooth_core::{NoProgress, Params, SmoothError, SmoothOutput, run, shapes};
 use std::path::Path;
 use std::process::Command;
 use std::sync::atomic::AtomicBool;
@@ -99,18 +108,23 @@ fn one(radius: f64, first: bool) -> (f64, f64) {
     (wall, cpu)
 }
 
-/// One timed run on `mesh` (named `name`): prints its stages, returns the
-/// wall seconds.
-fn one_file(name: &str, mesh: &Mesh) -> f64 {
+/// The default pipeline on `mesh`, and its wall seconds.
+fn timed_run(mesh: &Mesh) -> (Result<SmoothOutput, SmoothError>, f64) {
     let t = Instant::now();
     let out = run(
         mesh,
         &Params::default(),
         &NoProgress,
         &AtomicBool::new(false),
-    )
-    .expect("run");
-    let wall = t.elapsed().as_secs_f64();
+    );
+    (out, t.elapsed().as_secs_f64())
+}
+
+/// One timed run on `mesh` (named `name`): prints its stages, returns the
+/// wall seconds.
+fn one_file(name: &str, mesh: &Mesh) -> f64 {
+    let (out, wall) = timed_run(mesh);
+    let out = out.expect("run");
     let n = mesh.num_vertices();
     println!(
         "{name}  vertices {n:>8}  wall {wall:>6.3} s  ({:.2} us/vertex)  stages (ms): {}",
@@ -150,6 +164,96 @@ fn file_against_sphere(path: &Path, repeats: usize) {
     );
 }
 
+/// `n` points on a circle of radius 1 around `centre` in the plane `z`.
+fn circle(centre: DVec3, n: usize, z: f64) -> impl Iterator<Item = DVec3> {
+    (0..n).map(move |i| {
+        let a = std::f64::consts::TAU * i as f64 / n as f64;
+        centre + DVec3::new(a.cos(), a.sin(), z)
+    })
+}
+
+/// `count` closed double cones, side by side: a rim of `rim` vertices and
+/// two tips, each tip with `rim` edges.
+fn double_cones(count: usize, rim: usize) -> Mesh {
+    let (mut p, mut faces) = (Vec::new(), Vec::new());
+    for c in 0..count {
+        let centre = DVec3::new(4.0 * c as f64, 0.0, 0.0);
+        let base = p.len() as u32;
+        p.push(centre + DVec3::Z);
+        p.push(centre - DVec3::Z);
+        p.extend(circle(centre, rim, 0.0));
+        for i in 0..rim as u32 {
+            let (a, b) = (base + 2 + i, base + 2 + (i + 1) % rim as u32);
+            faces.push(vec![base, a, b]);
+            faces.push(vec![base + 1, b, a]);
+        }
+    }
+    Mesh::from_polygons(p, &faces).expect("double cones")
+}
+
+/// `count` closed prisms, side by side: two caps of `corners` corners and
+/// a quad per side.
+fn prisms(count: usize, corners: usize) -> Mesh {
+    let (mut p, mut faces) = (Vec::new(), Vec::new());
+    let n = corners as u32;
+    for c in 0..count {
+        let centre = DVec3::new(4.0 * c as f64, 0.0, 0.0);
+        let base = p.len() as u32;
+        p.extend(circle(centre, corners, 0.0));
+        p.extend(circle(centre, corners, 1.0));
+        faces.push((0..n).rev().map(|i| base + i).collect());
+        faces.push((0..n).map(|i| base + n + i).collect());
+        for i in 0..n {
+            let j = (i + 1) % n;
+            faces.push(vec![base + i, base + j, base + n + j, base + n + i]);
+        }
+    }
+    Mesh::from_polygons(p, &faces).expect("prisms")
+}
+
+/// Times the default pipeline on the shapes of `-- limits`.
+fn limits() {
+    let (fan_edges, face_corners) = (200 * MAX_VALENCE, 100 * MAX_FACE_CORNERS);
+    let fan = {
+        let n = fan_edges;
+        let mut p = vec![DVec3::ZERO];
+        p.extend(circle(DVec3::ZERO, n, 0.0));
+        let faces: Vec<[u32; 3]> = (0..n as u32)
+            .map(|i| [0, i + 1, (i + 1) % n as u32 + 1])
+            .collect();
+        Mesh::from_polygons(p, &faces).expect("fan")
+    };
+    let face = {
+        let n = face_corners;
+        let p: Vec<DVec3> = circle(DVec3::ZERO, n, 0.0).collect();
+        Mesh::from_polygons(p, &[(0..n as u32).collect::<Vec<u32>>()]).expect("face")
+    };
+    let cases = [
+        (format!("fan of {fan_edges} triangles"), fan),
+        (format!("one face of {face_corners} corners"), face),
+        (
+            format!("300 double cones, tips of {} edges", MAX_VALENCE - 2),
+            double_cones(300, MAX_VALENCE - 2),
+        ),
+        (
+            format!("300 prisms, caps of {} corners", MAX_FACE_CORNERS - 2),
+            prisms(300, MAX_FACE_CORNERS - 2),
+        ),
+    ];
+    for (name, mesh) in &cases {
+        let (out, wall) = timed_run(mesh);
+        let n = mesh.num_vertices();
+        match out {
+            Ok(out) => println!(
+                "{name}: {n} vertices, smoothed in {wall:.3} s ({:.2} us/vertex); stages (ms): {}",
+                wall * 1e6 / n as f64,
+                stage_times(&out.report)
+            ),
+            Err(e) => println!("{name}: {n} vertices, refused in {wall:.3} s: {e}"),
+        }
+    }
+}
+
 /// The median of `x` (the upper one of an even count).
 fn median(mut x: Vec<f64>) -> f64 {
     x.sort_by(f64::total_cmp);
@@ -173,6 +277,10 @@ fn main() {
                 median(runs.iter().map(|r| r.1).collect()),
             );
         }
+        return;
+    }
+    if args.first().is_some_and(|a| a == "limits") {
+        limits();
         return;
     }
     if let Some(path) = args.first().map(Path::new).filter(|p| p.is_file()) {

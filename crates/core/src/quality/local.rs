@@ -395,6 +395,9 @@ pub(crate) struct MoveTester {
     /// position of each vertex of `reach`.
     bound: Option<FidelityBound>,
     reach_input: Vec<DVec3>,
+    /// A vertex given to `begin` may not move ([`fixable`]): nothing needs
+    /// work and no move is allowed.
+    frozen: bool,
 }
 
 impl MoveTester {
@@ -433,6 +436,15 @@ impl MoveTester {
         self.cos_goal = cos_goal;
         self.reach.clear();
         self.reach_input.clear();
+        self.faces.clear();
+        self.starts.clear();
+        self.input_normals.clear();
+        self.before.clear();
+        self.input_floor.clear();
+        self.frozen = !vertices.iter().all(|&v| fixable(mesh, topo, v));
+        if self.frozen {
+            return;
+        }
         self.reach_input.extend(vertices.iter().map(|&v| input[v]));
         for &v in vertices {
             let p = positions[v];
@@ -444,7 +456,6 @@ impl MoveTester {
                 .sqrt();
             self.reach.push((v, longest));
         }
-        self.faces.clear();
         for &v in vertices {
             for &f in topo.vertex_faces(v) {
                 if !self.faces.contains(&f) && !has_repeated_corner(mesh.face(f as usize)) {
@@ -452,10 +463,6 @@ impl MoveTester {
                 }
             }
         }
-        self.starts.clear();
-        self.input_normals.clear();
-        self.before.clear();
-        self.input_floor.clear();
         for &f in &self.faces {
             let face = mesh.face(f as usize);
             self.input_floor.push(match self.guard {
@@ -492,9 +499,11 @@ impl MoveTester {
     /// True when a recorded face is inverted, twisted, or has a smallest
     /// split-triangle angle below the goal.
     pub fn needs_work(&self) -> bool {
-        self.before
-            .iter()
-            .any(|s| s.inverted || s.twisted || s.max_cos > self.cos_goal)
+        !self.frozen
+            && self
+                .before
+                .iter()
+                .any(|s| s.inverted || s.twisted || s.max_cos > self.cos_goal)
     }
 
     /// Judges the faces recorded by [`MoveTester::begin`] as they would be
@@ -518,12 +527,14 @@ impl MoveTester {
             newly_sharp: false,
         };
         // A fix moves a vertex within its star; a longer jump (a fit or
-        // centroid gone wrong on a tangled patch) is never a repair.
-        verdict.new_fold_or_jump = moves.iter().any(|&(w, p)| {
-            let reach = self.reach.iter().find(|r| r.0 == w).map_or(0.0, |r| r.1);
-            let jump = p.distance(positions[w]);
-            jump > reach || jump.is_nan()
-        });
+        // centroid gone wrong on a tangled patch) is never a repair. A
+        // frozen vertex does not move at all.
+        verdict.new_fold_or_jump = self.frozen
+            || moves.iter().any(|&(w, p)| {
+                let reach = self.reach.iter().find(|r| r.0 == w).map_or(0.0, |r| r.1);
+                let jump = p.distance(positions[w]);
+                jump > reach || jump.is_nan()
+            });
         if let Some(bound) = &self.bound {
             verdict.new_fold_or_jump |= moves.iter().any(|&(w, p)| {
                 self.reach
@@ -562,13 +573,53 @@ impl MoveTester {
     }
 }
 
+/// Most neighbours of a vertex the fixes treat as a sample of a surface. A
+/// vertex with more is a hub (the apex of a fan, many sheets pinched at one
+/// point): the fixes do not move it, the 2-rings of its neighbours do not
+/// walk through it and their fits leave it out (its normal sums every face
+/// around it). Each visit then costs a bounded amount of work whatever the
+/// valence, and a mesh of many hubs costs in proportion to its size; a
+/// closed fan of up to this many faces still fits the bit mask
+/// [`ordered_link`] chains it with.
+pub(crate) const MAX_FAN: usize = 64;
+
+/// Most corners of a face whose corners the fixes move. Judging a tried
+/// position re-splits every face around the vertex, so each corner of a
+/// face of `k` corners costs `k` per try and the face `k^2` a sweep:
+/// polygons of a few dozen corners would cost as much as thousands of
+/// quads. Real meshes' faces beyond quads are pentagons and hexagons (a
+/// subdivision cage's extraordinary faces, a mesh of hexagons); the split
+/// triangles of a fan past eight corners are sharp by construction, which
+/// no move of one corner opens.
+pub(crate) const MAX_FIX_CORNERS: usize = 8;
+
+/// Whether the fixes may move `v`: it is no hub ([`MAX_FAN`]) and no face
+/// around it has more than [`MAX_FIX_CORNERS`] corners. Costs a look at
+/// each of its faces' sizes.
+pub(crate) fn fixable(mesh: &Mesh, topo: &Topology, v: usize) -> bool {
+    !is_hub(topo, v)
+        && topo
+            .vertex_faces(v)
+            .iter()
+            .all(|&f| mesh.face(f as usize).len() <= MAX_FIX_CORNERS)
+}
+
+/// Whether `v` is a hub ([`MAX_FAN`]).
+#[inline]
+pub(crate) fn is_hub(topo: &Topology, v: usize) -> bool {
+    topo.neighbors(v).len() > MAX_FAN
+}
+
 /// Appends the 2-ring of `v` (every vertex within two edges, not `v`) to
-/// `out`, sorted and without duplicates.
+/// `out`, sorted and without duplicates; a hub among `v`'s neighbours is in
+/// it but not its own neighbours ([`MAX_FAN`]).
 pub(crate) fn two_ring(topo: &Topology, v: usize, out: &mut Vec<u32>) {
     out.clear();
     for &a in topo.neighbors(v) {
         out.push(a);
-        out.extend(topo.neighbors(a as usize).iter().copied());
+        if !is_hub(topo, a as usize) {
+            out.extend(topo.neighbors(a as usize).iter().copied());
+        }
     }
     out.sort_unstable();
     out.dedup();
@@ -578,10 +629,15 @@ pub(crate) fn two_ring(topo: &Topology, v: usize, out: &mut Vec<u32>) {
 /// The link of interior vertex `v`: the corners of its faces other than
 /// `v`, in order around `v` (counter-clockwise seen from the side its faces'
 /// normals point to), each once. Returns false (and leaves `out` in an
-/// unspecified state) when the faces do not chain into one closed fan.
+/// unspecified state) when the faces do not chain into one closed fan, or
+/// the fixes may not move `v` ([`fixable`]).
 pub(crate) fn ordered_link(mesh: &Mesh, topo: &Topology, v: usize, out: &mut Vec<u32>) -> bool {
     out.clear();
     let faces = topo.vertex_faces(v);
+    // The chaining below marks the faces used in a 64-bit mask.
+    if faces.len() > MAX_FAN || !fixable(mesh, topo, v) {
+        return false;
+    }
     if faces
         .iter()
         .any(|&f| has_repeated_corner(mesh.face(f as usize)))
@@ -605,10 +661,7 @@ pub(crate) fn ordered_link(mesh: &Mesh, topo: &Topology, v: usize, out: &mut Vec
         out.push(face[(at + j) % k]);
     }
     let mut used = 1usize;
-    let mut pending_mask: u64 = 0; // bit i set = rest[i] used (fans of <= 64 faces)
-    if rest.len() > 64 {
-        return false;
-    }
+    let mut pending_mask: u64 = 0; // bit i set = rest[i] used
     while used < faces.len() {
         let last = *out.last().unwrap_or(&u32::MAX);
         let mut found = false;
@@ -645,7 +698,8 @@ pub(crate) fn ordered_link(mesh: &Mesh, topo: &Topology, v: usize, out: &mut Vec
 /// The fitted surface around a vertex: its quadric (section 3) in the frame
 /// at its current position and normal, fitted to its 2-ring less the
 /// neighbours facing away (cosine of their normal with the vertex's below
-/// `min_normal_cos`, as in the smoothing passes).
+/// `min_normal_cos`, as in the smoothing passes) and the hubs
+/// ([`MAX_FAN`]).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct LocalSurface {
     pub frame: Frame,
@@ -668,11 +722,11 @@ impl LocalSurface {
         }
         let frame = Frame::new(positions[v], n);
         two_ring(topo, v, ring);
-        if min_normal_cos > -1.0 {
-            ring.retain(|&w| {
-                vertex_normal(mesh, topo, positions, w as usize).dot(n) >= min_normal_cos
-            });
-        }
+        ring.retain(|&w| {
+            !is_hub(topo, w as usize)
+                && (min_normal_cos <= -1.0
+                    || vertex_normal(mesh, topo, positions, w as usize).dot(n) >= min_normal_cos)
+        });
         let fit = fit_quadric(&frame, positions, ring);
         Some(LocalSurface { frame, fit })
     }
@@ -1031,5 +1085,47 @@ mod tests {
         assert!(!near.new_defect);
         let far = tester.judge(&m, &[(v, DVec3::new(1.0, 1.0, 1.1))], &input);
         assert!(far.new_defect && far.inverted.1 == 0);
+    }
+
+    #[test]
+    fn a_hubs_neighbours_do_not_walk_through_it() {
+        use crate::quality::fixtures::double_cone;
+        let rim = 4 * MAX_FAN as u32;
+        let m = double_cone(rim);
+        let t = Topology::build(&m);
+        let mut ring = Vec::new();
+        // Rim vertex 10: its four neighbours (the two tips, rim vertices 9
+        // and 11) and theirs along the rim (8 and 12), not the whole rim.
+        two_ring(&t, 10, &mut ring);
+        assert_eq!(ring, vec![0, 1, 8, 9, 11, 12]);
+        assert!(is_hub(&t, 0) && !fixable(&m, &t, 0));
+        assert!(fixable(&m, &t, 10));
+        // A fan the chaining cannot hold is no link.
+        let mut link = Vec::new();
+        assert!(!ordered_link(&m, &t, 0, &mut link));
+        assert!(ordered_link(&m, &t, 10, &mut link));
+        // The tips are left out of the fit, with no facing rule.
+        assert!(LocalSurface::at(&m, &t, 10, m.positions(), &mut ring, -2.0).is_some());
+        assert_eq!(ring, vec![8, 9, 11, 12]);
+    }
+
+    #[test]
+    fn the_corners_of_a_large_polygon_stay() {
+        use crate::quality::fixtures::prism;
+        for (corners, movable) in [(MAX_FIX_CORNERS, true), (MAX_FIX_CORNERS + 1, false)] {
+            let m = prism(corners as u32);
+            let t = Topology::build(&m);
+            let input = m.positions().to_vec();
+            assert_eq!(fixable(&m, &t, 0), movable);
+            let mut link = Vec::new();
+            assert_eq!(ordered_link(&m, &t, 0, &mut link), movable);
+            // Every split triangle of a cap is sharper than 90 degrees
+            // allows: work to do, unless the corner may not move.
+            let mut tester = MoveTester::default();
+            tester.begin(&m, &t, &[0], &input, &input, 0.0);
+            assert_eq!(tester.needs_work(), movable);
+            let nudge = input[0] + DVec3::new(-0.01, 0.0, 0.0);
+            assert_eq!(tester.judge(&m, &[(0, nudge)], &input).new_defect, !movable);
+        }
     }
 }

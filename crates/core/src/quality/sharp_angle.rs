@@ -77,8 +77,9 @@
 //! the step would fold) the same pattern across the way to the mean.
 
 use super::local::{
-    LocalSurface, MoveTester, Verdict, angle_based_target, face_state, has_repeated_corner,
-    link_centroid, link_radius, max_split_cos, ordered_link, uninvert_steps,
+    LocalSurface, MoveTester, Verdict, angle_based_target, face_state, fixable,
+    has_repeated_corner, is_hub, link_centroid, link_radius, max_split_cos, ordered_link,
+    uninvert_steps,
 };
 use crate::mesh::{Mesh, Topology, VertexKind};
 use crate::smoothing::fidelity::FidelityBound;
@@ -548,7 +549,8 @@ pub fn fix_sharp_angles(
     stats
 }
 
-/// The corners of `faces` that `movers` may move, ascending, each once.
+/// The corners of `faces` that `movers` may move, ascending, each once
+/// (never a hub or a corner of a large polygon: [`fixable`]).
 fn corners_of(mesh: &Mesh, topo: &Topology, faces: &[u32], movers: Movers) -> Vec<u32> {
     let mut out: Vec<u32> = faces
         .iter()
@@ -561,6 +563,7 @@ fn corners_of(mesh: &Mesh, topo: &Topology, faces: &[u32], movers: Movers) -> Ve
         .collect();
     out.sort_unstable();
     out.dedup();
+    out.retain(|&v| fixable(mesh, topo, v as usize));
     out
 }
 
@@ -598,22 +601,30 @@ impl Colouring {
         let mut overflow = Vec::new();
         let mut counts = [0usize; MAX_CLASSES];
         for &v in vertices {
-            let mut used = 0u64;
-            let mut mark = |w: u32| {
-                let c = self.colour[w as usize];
-                if (c as usize) < MAX_CLASSES {
-                    used |= 1 << c;
+            // A neighbour of a hub is within two edges of all the hub's
+            // neighbours: it takes a class of its own, without the walk.
+            let next_to_hub = topo
+                .neighbors(v as usize)
+                .iter()
+                .any(|&a| is_hub(topo, a as usize));
+            let mut used = if next_to_hub { u64::MAX } else { 0 };
+            if !next_to_hub {
+                let mut mark = |w: u32| {
+                    let c = self.colour[w as usize];
+                    if (c as usize) < MAX_CLASSES {
+                        used |= 1 << c;
+                    }
+                };
+                for &a in topo.neighbors(v as usize) {
+                    mark(a);
+                    for &b in topo.neighbors(a as usize) {
+                        mark(b);
+                    }
                 }
-            };
-            for &a in topo.neighbors(v as usize) {
-                mark(a);
-                for &b in topo.neighbors(a as usize) {
-                    mark(b);
-                }
-            }
-            for &f in topo.vertex_faces(v as usize) {
-                for &w in mesh.face(f as usize) {
-                    mark(w);
+                for &f in topo.vertex_faces(v as usize) {
+                    for &w in mesh.face(f as usize) {
+                        mark(w);
+                    }
                 }
             }
             let c = (!used).trailing_zeros() as usize;
