@@ -588,9 +588,11 @@ pub(crate) const MAX_FAN: usize = 64;
 /// face of `k` corners costs `k` per try and the face `k^2` a sweep:
 /// polygons of a few dozen corners would cost as much as thousands of
 /// quads. Real meshes' faces beyond quads are pentagons and hexagons (a
-/// subdivision cage's extraordinary faces, a mesh of hexagons); the split
-/// triangles of a fan past eight corners are sharp by construction, which
-/// no move of one corner opens.
+/// subdivision cage's extraordinary faces, a mesh of hexagons). The split
+/// of a regular polygon of `k` corners has angles of `180 / k` degrees at
+/// its first corner, 20 (the sharp-angle threshold) at nine: past eight
+/// corners a polygon's split is sharp by construction, which no move of
+/// one corner opens.
 pub(crate) const MAX_FIX_CORNERS: usize = 8;
 
 /// Whether the fixes may move `v`: it is no hub ([`MAX_FAN`]) and no face

@@ -17,7 +17,11 @@
 //! them in the order twisted quads, short edges, sharp angles (interior
 //! vertices, then with the non-manifold ones), inverted faces (then sharp
 //! angles once more, both runs, when that moved anything), slivers. All are
-//! deterministic and independent of the number of threads.
+//! deterministic and independent of the number of threads. None moves a
+//! hub (a vertex of more than [`local::MAX_FAN`] edges, the tip of a fan)
+//! or a corner of a face of more than [`local::MAX_FIX_CORNERS`] corners,
+//! and no fit walks through a hub, so a visit's work is bounded whatever
+//! the mesh's valences and polygons.
 
 #[cfg(test)]
 pub(crate) mod fixtures;

@@ -57,7 +57,10 @@
 //! sweep in class order and does not depend on the thread count. The fix
 //! stops after `max_sweeps` sweeps, or when a sweep moves nothing and the
 //! pattern search has had its sweep. Interior vertices whose faces form
-//! one closed fan move; boundary and isolated vertices stay.
+//! one closed fan move; boundary and isolated vertices stay, and so do
+//! hubs and the corners of large polygons ([`super::local::fixable`]). A
+//! hub's neighbour, within two edges of all the hub's other neighbours,
+//! takes a class of its own.
 //!
 //! Non-manifold vertices (where sheets meet at one vertex: voxels touching
 //! along an edge or at a corner, a neuron's junctions) have no fan to
