@@ -20,7 +20,6 @@
 //! and 300 prisms capped by polygons of just under [`MAX_FACE_CORNERS`]
 //! corners (both smoothed), each with its wall time and stages.
 
-use glam::DVec3;
 use meshsmooth_core::io::{Format, ReadLimits, read};
 use meshsmooth_core::mesh::Mesh;
 use meshsmooth_core::pipeline::{MAX_FACE_CORNERS, MAX_VALENCE};
@@ -164,80 +163,25 @@ fn file_against_sphere(path: &Path, repeats: usize) {
     );
 }
 
-/// `n` points on a circle of radius 1 around `centre` in the plane `z`.
-fn circle(centre: DVec3, n: usize, z: f64) -> impl Iterator<Item = DVec3> {
-    (0..n).map(move |i| {
-        let a = std::f64::consts::TAU * i as f64 / n as f64;
-        centre + DVec3::new(a.cos(), a.sin(), z)
-    })
-}
-
-/// `count` closed double cones, side by side: a rim of `rim` vertices and
-/// two tips, each tip with `rim` edges.
-fn double_cones(count: usize, rim: usize) -> Mesh {
-    let (mut p, mut faces) = (Vec::new(), Vec::new());
-    for c in 0..count {
-        let centre = DVec3::new(4.0 * c as f64, 0.0, 0.0);
-        let base = p.len() as u32;
-        p.push(centre + DVec3::Z);
-        p.push(centre - DVec3::Z);
-        p.extend(circle(centre, rim, 0.0));
-        for i in 0..rim as u32 {
-            let (a, b) = (base + 2 + i, base + 2 + (i + 1) % rim as u32);
-            faces.push(vec![base, a, b]);
-            faces.push(vec![base + 1, b, a]);
-        }
-    }
-    Mesh::from_polygons(p, &faces).expect("double cones")
-}
-
-/// `count` closed prisms, side by side: two caps of `corners` corners and
-/// a quad per side.
-fn prisms(count: usize, corners: usize) -> Mesh {
-    let (mut p, mut faces) = (Vec::new(), Vec::new());
-    let n = corners as u32;
-    for c in 0..count {
-        let centre = DVec3::new(4.0 * c as f64, 0.0, 0.0);
-        let base = p.len() as u32;
-        p.extend(circle(centre, corners, 0.0));
-        p.extend(circle(centre, corners, 1.0));
-        faces.push((0..n).rev().map(|i| base + i).collect());
-        faces.push((0..n).map(|i| base + n + i).collect());
-        for i in 0..n {
-            let j = (i + 1) % n;
-            faces.push(vec![base + i, base + j, base + n + j, base + n + i]);
-        }
-    }
-    Mesh::from_polygons(p, &faces).expect("prisms")
-}
-
 /// Times the default pipeline on the shapes of `-- limits`.
 fn limits() {
     let (fan_edges, face_corners) = (200 * MAX_VALENCE, 100 * MAX_FACE_CORNERS);
-    let fan = {
-        let n = fan_edges;
-        let mut p = vec![DVec3::ZERO];
-        p.extend(circle(DVec3::ZERO, n, 0.0));
-        let faces: Vec<[u32; 3]> = (0..n as u32)
-            .map(|i| [0, i + 1, (i + 1) % n as u32 + 1])
-            .collect();
-        Mesh::from_polygons(p, &faces).expect("fan")
-    };
-    let face = {
-        let n = face_corners;
-        let p: Vec<DVec3> = circle(DVec3::ZERO, n, 0.0).collect();
-        Mesh::from_polygons(p, &[(0..n as u32).collect::<Vec<u32>>()]).expect("face")
-    };
     let cases = [
-        (format!("fan of {fan_edges} triangles"), fan),
-        (format!("one face of {face_corners} corners"), face),
+        (
+            format!("fan of {fan_edges} triangles"),
+            shapes::fan(fan_edges),
+        ),
+        (
+            format!("one face of {face_corners} corners"),
+            shapes::big_face(face_corners),
+        ),
         (
             format!("300 double cones, tips of {} edges", MAX_VALENCE - 2),
-            double_cones(300, MAX_VALENCE - 2),
+            shapes::double_cones(300, MAX_VALENCE - 2),
         ),
         (
             format!("300 prisms, caps of {} corners", MAX_FACE_CORNERS - 2),
-            prisms(300, MAX_FACE_CORNERS - 2),
+            shapes::prisms(300, MAX_FACE_CORNERS - 2),
         ),
     ];
     for (name, mesh) in &cases {

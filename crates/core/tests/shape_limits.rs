@@ -2,36 +2,11 @@
 //! or a face of huge arity is refused before any stage whose cost grows
 //! with their square, with a typed error naming the vertex or face.
 
-use glam::DVec3;
 use meshsmooth_core::error::ErrorCode;
 use meshsmooth_core::pipeline::{MAX_FACE_CORNERS, MAX_VALENCE, measure};
+use meshsmooth_core::shapes::{big_face, fan};
 use meshsmooth_core::{Mesh, NoProgress, Params, run};
 use std::sync::atomic::AtomicBool;
-
-/// One hub vertex shared by `n` triangles around a wavy rim.
-fn fan(n: usize) -> Mesh {
-    let mut p = vec![DVec3::ZERO];
-    p.extend((0..n).map(|i| {
-        let a = std::f64::consts::TAU * i as f64 / n as f64;
-        DVec3::new(a.cos(), a.sin(), 0.1 * (7.0 * a).sin())
-    }));
-    let faces: Vec<[u32; 3]> = (0..n as u32)
-        .map(|i| [0, i + 1, (i + 1) % n as u32 + 1])
-        .collect();
-    Mesh::from_polygons(p, &faces).unwrap()
-}
-
-/// One polygon of `n` corners on a circle.
-fn big_face(n: usize) -> Mesh {
-    let p = (0..n)
-        .map(|i| {
-            let a = std::f64::consts::TAU * i as f64 / n as f64;
-            DVec3::new(a.cos(), a.sin(), 0.0)
-        })
-        .collect();
-    let face: Vec<u32> = (0..n as u32).collect();
-    Mesh::new(p, vec![0, n as u32], face).unwrap()
-}
 
 fn code_of(mesh: &Mesh) -> Option<ErrorCode> {
     run(

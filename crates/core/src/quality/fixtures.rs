@@ -54,46 +54,6 @@ pub fn two_fans(centre: DVec3) -> Mesh {
     Mesh::from_polygons(positions, &faces).expect("two fans")
 }
 
-/// A closed double cone: tips 0 (at z = 1) and 1 (at z = -1) and a rim of
-/// `rim` vertices (2 ..) on the unit circle at z = 0; each tip has `rim`
-/// edges, each rim vertex four. Every face is a sliver once the rim is
-/// longer than a few dozen vertices.
-pub fn double_cone(rim: u32) -> Mesh {
-    let mut p = vec![DVec3::Z, -DVec3::Z];
-    p.extend((0..rim).map(|i| {
-        let (sin, cos) = (std::f64::consts::TAU * i as f64 / rim as f64).sin_cos();
-        DVec3::new(cos, sin, 0.0)
-    }));
-    let mut f = Vec::new();
-    for i in 0..rim {
-        let (a, b) = (2 + i, 2 + (i + 1) % rim);
-        f.push([0, a, b]);
-        f.push([1, b, a]);
-    }
-    Mesh::from_polygons(p, &f).expect("double cone")
-}
-
-/// A closed prism: a bottom cap (vertices 0 .. `corners`, at z = 0) and a
-/// top cap (the next `corners`, at z = 1), each one polygon of `corners`
-/// corners on the unit circle, and a quad per side. Face 0 is the bottom
-/// cap.
-pub fn prism(corners: u32) -> Mesh {
-    let ring = |z: f64| {
-        (0..corners).map(move |i| {
-            let (sin, cos) = (std::f64::consts::TAU * i as f64 / corners as f64).sin_cos();
-            DVec3::new(cos, sin, z)
-        })
-    };
-    let p: Vec<DVec3> = ring(0.0).chain(ring(1.0)).collect();
-    let n = corners;
-    let mut f: Vec<Vec<u32>> = vec![(0..n).rev().collect(), (n..2 * n).collect()];
-    for i in 0..n {
-        let j = (i + 1) % n;
-        f.push(vec![i, j, n + j, n + i]);
-    }
-    Mesh::from_polygons(p, &f).expect("prism")
-}
-
 /// A voxel-like staircase, open, normals up: `steps` terraces of `width`
 /// unit quads along x, each one voxel above the last, joined by unit
 /// risers facing -x, `depth` quads along y. Returns the mesh and the

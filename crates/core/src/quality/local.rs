@@ -1091,9 +1091,7 @@ mod tests {
 
     #[test]
     fn a_hubs_neighbours_do_not_walk_through_it() {
-        use crate::quality::fixtures::double_cone;
-        let rim = 4 * MAX_FAN as u32;
-        let m = double_cone(rim);
+        let m = crate::shapes::double_cones(1, 4 * MAX_FAN);
         let t = Topology::build(&m);
         let mut ring = Vec::new();
         // Rim vertex 10: its four neighbours (the two tips, rim vertices 9
@@ -1113,9 +1111,8 @@ mod tests {
 
     #[test]
     fn the_corners_of_a_large_polygon_stay() {
-        use crate::quality::fixtures::prism;
         for (corners, movable) in [(MAX_FIX_CORNERS, true), (MAX_FIX_CORNERS + 1, false)] {
-            let m = prism(corners as u32);
+            let m = crate::shapes::prisms(1, corners);
             let t = Topology::build(&m);
             let input = m.positions().to_vec();
             assert_eq!(fixable(&m, &t, 0), movable);

@@ -604,32 +604,7 @@ impl Colouring {
         let mut overflow = Vec::new();
         let mut counts = [0usize; MAX_CLASSES];
         for &v in vertices {
-            // A neighbour of a hub is within two edges of all the hub's
-            // neighbours: it takes a class of its own, without the walk.
-            let next_to_hub = topo
-                .neighbors(v as usize)
-                .iter()
-                .any(|&a| is_hub(topo, a as usize));
-            let mut used = if next_to_hub { u64::MAX } else { 0 };
-            if !next_to_hub {
-                let mut mark = |w: u32| {
-                    let c = self.colour[w as usize];
-                    if (c as usize) < MAX_CLASSES {
-                        used |= 1 << c;
-                    }
-                };
-                for &a in topo.neighbors(v as usize) {
-                    mark(a);
-                    for &b in topo.neighbors(a as usize) {
-                        mark(b);
-                    }
-                }
-                for &f in topo.vertex_faces(v as usize) {
-                    for &w in mesh.face(f as usize) {
-                        mark(w);
-                    }
-                }
-            }
+            let used = self.classes_near(mesh, topo, v as usize);
             let c = (!used).trailing_zeros() as usize;
             if c < MAX_CLASSES {
                 self.colour[v as usize] = c as u8;
@@ -663,6 +638,35 @@ impl Colouring {
             self.order.push(v);
             self.starts.push(self.order.len());
         }
+    }
+
+    /// The classes already taken within two edges of `v` or on its faces,
+    /// one bit each; all of them for a neighbour of a hub, which is within
+    /// two edges of all the hub's neighbours and takes a class of its own
+    /// without that walk.
+    fn classes_near(&self, mesh: &Mesh, topo: &Topology, v: usize) -> u64 {
+        if topo.neighbors(v).iter().any(|&a| is_hub(topo, a as usize)) {
+            return u64::MAX;
+        }
+        let mut used = 0u64;
+        let mut mark = |w: u32| {
+            let c = self.colour[w as usize];
+            if (c as usize) < MAX_CLASSES {
+                used |= 1 << c;
+            }
+        };
+        for &a in topo.neighbors(v) {
+            mark(a);
+            for &b in topo.neighbors(a as usize) {
+                mark(b);
+            }
+        }
+        for &f in topo.vertex_faces(v) {
+            for &w in mesh.face(f as usize) {
+                mark(w);
+            }
+        }
+        used
     }
 
     fn classes(&self) -> impl Iterator<Item = &[u32]> + '_ {

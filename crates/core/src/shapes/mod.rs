@@ -10,10 +10,12 @@
 //! from the true surface in voxels. Generation is deterministic.
 
 mod ellipsoid;
+mod limits;
 mod marching_cubes;
 mod segmentation;
 mod voxel;
 
+pub use limits::{big_face, double_cones, fan, prisms};
 pub use marching_cubes::marching_cubes_mesh;
 pub use segmentation::{
     FoldedSheet, Placed, Shell, SpherePair, edge_touching_blocks, folded_sheet, placed, placement,
