@@ -15,6 +15,10 @@ metrics of `compare_peers.py`:
 - `decimc`: the mask's marching cubes decimated to 30% of its faces by
   PyMeshLab's quadric edge collapse (what a viewer or a mesh export often
   does); its edges are several voxels long where the surface is flat.
+- `softnoisy`: `softmc` with noise along its vertex normals, normal with a
+  standard deviation of a tenth of its mean edge (seeded): an isosurface
+  of a noisy image, whose noise a smoother should take out while it keeps
+  the surface.
 
     python3 eval/pipeline_variants.py [--data DIR] [--binary PATH] [--only wm_softmc,...]
 
@@ -61,6 +65,7 @@ def variants(data, affine):
 
     mask = (data > LEVEL).astype(np.float64)
     out = {"softmc": mc(data, LEVEL), "blurmc": mc(gaussian_filter(mask, 1.0), 0.5)}
+    out["softnoisy"] = with_normal_noise(*out["softmc"], 0.1)
     v, f = mc(mask, 0.5)
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(v, f))
@@ -68,6 +73,20 @@ def variants(data, affine):
     m = ms.current_mesh()
     out["decimc"] = (np.asarray(m.vertex_matrix()), np.asarray(m.face_matrix()))
     return {k: (v, [list(t) for t in f]) for k, (v, f) in out.items()}
+
+
+def with_normal_noise(verts, faces, sigma, seed=1):
+    """`verts` moved along their area-weighted normals by normal noise of
+    `sigma` mean edge lengths (seeded, so the same mesh every run)."""
+    faces = np.asarray(faces)
+    a, b, c = (verts[faces[:, k]] for k in range(3))
+    normals = np.zeros_like(verts)
+    for k in range(3):
+        np.add.at(normals, faces[:, k], np.cross(b - a, c - a))
+    normals /= np.maximum(np.linalg.norm(normals, axis=1), 1e-300)[:, None]
+    edge = np.mean([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1), np.linalg.norm(a - c, axis=1)])
+    noise = np.random.default_rng(seed).normal(0.0, sigma * edge, len(verts))
+    return verts + normals * noise[:, None], faces
 
 
 def main():
@@ -88,7 +107,7 @@ def main():
     }
     print("| tool | flipped | twisted | angles<20 | min angle | max move | curv. var. | volume | truth RMS | time |")
     for key, (prob, margin) in MAPS.items():
-        wanted = [n for n in ("softmc", "blurmc", "decimc") if not args.only or f"{key}_{n}" in args.only.split(",")]
+        wanted = [n for n in ("softmc", "softnoisy", "blurmc", "decimc") if not args.only or f"{key}_{n}" in args.only.split(",")]
         if not wanted:
             continue
         img = nib.load(str(Path(args.data) / prob))

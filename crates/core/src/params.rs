@@ -243,6 +243,21 @@ pub struct Params {
     /// freely.
     /// Default 0.5; range 0 < d <= 10.
     pub max_displacement: Option<f64>,
+    /// On a mesh cut from no voxel grid (the marching cubes of a probability
+    /// map, a blurred or decimated mask's mesh, a molecular surface): how
+    /// far a vertex may move across its input surface, in multiples of the
+    /// input's noise. The noise is estimated from the input itself: the
+    /// median height of a vertex above the quadric fitted to its 2-ring, in
+    /// its mean edge lengths (reported as `wang_yu.input_noise`). Such a
+    /// mesh may already be smooth, and the passes' fits would reshape its
+    /// folds; independent noise of standard deviation `sigma` gives an
+    /// estimate of about `0.75 sigma`, so the default 4 lets a vertex move
+    /// three standard deviations of it. The distance across is measured
+    /// from the input's own quadric through the vertex, so moves along a
+    /// curved surface are free (within `max_displacement`). Needs
+    /// `max_displacement`; `null` holds such vertices in its ball alone.
+    /// Default 4; range 0 < k <= 100.
+    pub noise_bound: Option<f64>,
     /// What boundary vertices do. Default `fixed`.
     pub boundary: BoundaryRule,
     /// Restore the input's enclosed volume at the end by a uniform offset
@@ -314,6 +329,7 @@ impl Default for Params {
             lattice_shape_passes: 0,
             lattice_lowpass_steps: 4,
             max_displacement: Some(0.5),
+            noise_bound: Some(4.0),
             boundary: BoundaryRule::Fixed,
             preserve_volume: true,
             weld: None,
@@ -515,6 +531,9 @@ impl Params {
         }
         if let Some(d) = self.max_displacement {
             check_f64("max_displacement", d, d > 0.0 && d <= 10.0, "0 < d <= 10")?;
+        }
+        if let Some(k) = self.noise_bound {
+            check_f64("noise_bound", k, k > 0.0 && k <= 100.0, "0 < k <= 100")?;
         }
         let w = self.weld_tolerance;
         check_f64("weld_tolerance", w, (0.0..=0.01).contains(&w), "0..=0.01")?;

@@ -24,6 +24,7 @@ use crate::smoothing::fairing::{FairingPlan, fair};
 use crate::smoothing::fidelity::{Fidelity, FidelityBound};
 use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
+use crate::smoothing::noise;
 use crate::smoothing::pinches::place_pinches;
 use crate::smoothing::project::FitStats;
 use crate::smoothing::staircase::{compensate_shrinkage, relax_staircase};
@@ -756,10 +757,30 @@ pub fn run(
     };
     progress.update(Stage::Analyse, 1.0);
     check(cancel)?;
-    let bound = params
-        .max_displacement
-        .filter(|_| params.method == Method::WangYu)
-        .map(|d| FidelityBound::new(mesh, topo, d));
+    // The bound, and off any grid the input's noise that narrows it.
+    let (bound, input_noise) = timings.time(Stage::Analyse, || {
+        let Some(d) = params
+            .max_displacement
+            .filter(|_| params.method == Method::WangYu)
+        else {
+            return (None, None);
+        };
+        let bound = FidelityBound::new(mesh, topo, d);
+        if bound.has_lattice() || bound.has_marching_cubes() {
+            return (Some(bound), None);
+        }
+        let noise = params.noise_bound.and_then(|k| {
+            let _s = tracing::info_span!("input_noise").entered();
+            noise::estimate(mesh, topo, k, params.min_normal_cos())
+        });
+        match noise {
+            Some(noise) => (
+                Some(bound.across_input_noise(noise.slabs)),
+                Some(noise.median),
+            ),
+            None => (Some(bound), None),
+        }
+    });
     let quality_bound = bound.as_ref().map(|b| b.widened(QUALITY_ROOM));
     let fidelity = Fidelity::new(bound.as_ref(), mesh.positions());
     let quality_fidelity = fidelity.with_bound(quality_bound.as_ref());
@@ -856,6 +877,7 @@ pub fn run(
     check(cancel)?;
     if let Some(summary) = report.wang_yu.as_mut() {
         summary.fidelity_held_back = bound.as_ref().map(|_| fidelity.held_back());
+        summary.input_noise = input_noise;
     }
 
     let curvature = timings.time(Stage::Report, || {
@@ -964,6 +986,7 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
         volume_offset: r.volume.mean_offset,
         volume_target_change: r.volume.aimed,
         fidelity_held_back: None,
+        input_noise: None,
         paired_triangles: run.paired_triangles as u64,
         input_grid: if run.lattice {
             InputGrid::Voxel

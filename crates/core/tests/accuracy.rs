@@ -125,6 +125,51 @@ fn the_report_names_the_grid_the_input_was_cut_from() {
 }
 
 #[test]
+fn a_mesh_of_no_grid_keeps_a_smooth_surface_and_loses_its_noise() {
+    // A torus whose tube is three or four edges across, every vertex on
+    // it: the passes' fits would flatten the tube's curvature, and the
+    // input's own noise (none) says they should not.
+    let (torus, mesh) = shapes::tessellated_torus(10.0, 2.5, 0.7);
+    let edge = mesh.mean_edge_length();
+    let free = Params {
+        noise_bound: None,
+        ..Params::default()
+    };
+    let rms_free = shapes::rms_distance(
+        &torus,
+        &run(&mesh, &free, &NoProgress, &AtomicBool::new(false))
+            .expect("smoothing runs")
+            .positions,
+    );
+    let out = smooth(&mesh);
+    let rms = shapes::rms_distance(&torus, &out.positions);
+    let noise = out.report.wang_yu.as_ref().and_then(|w| w.input_noise);
+    assert!(noise.is_some_and(|n| n < 0.01), "{noise:?}");
+    assert!(
+        rms < 0.01 * edge && rms_free > 5.0 * rms,
+        "RMS {rms:.4} against {rms_free:.4} without the noise bound"
+    );
+    // The same torus with noise of a tenth of an edge along the normals:
+    // estimated as such, and most of it taken out.
+    let mut noisy = mesh.clone();
+    for (i, p) in noisy.positions_mut().iter_mut().enumerate() {
+        *p += torus.normal_at(*p) * 0.1 * edge * shapes::normal_deviate(7, i as u64);
+    }
+    let rms_in = shapes::rms_distance(&torus, noisy.positions());
+    let out = smooth(&noisy);
+    let rms = shapes::rms_distance(&torus, &out.positions);
+    let noise = out.report.wang_yu.as_ref().and_then(|w| w.input_noise);
+    assert!(noise.is_some_and(|n| n > 0.06 && n < 0.095), "{noise:?}");
+    assert!(
+        rms < 0.7 * rms_in,
+        "noisy torus: RMS {rms:.4} against {rms_in:.4} in"
+    );
+    let f = out.report.stages.final_stage.expect("final stage measured");
+    assert_eq!(f.inverted_faces, 0);
+    assert!(f.triangle_angles.min_deg.is_some_and(|a| a >= 20.0));
+}
+
+#[test]
 fn a_voxel_mesh_written_as_triangles_smooths_as_its_voxel_faces() {
     // STL and glTF hold triangles only: each square split along a
     // diagonal, here alternating between the two.

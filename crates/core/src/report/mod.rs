@@ -22,7 +22,7 @@ use sha2::{Digest, Sha256};
 /// Version of the report's JSON schema: the major number changes when a
 /// field is removed or changes meaning, the minor number when fields are
 /// added.
-pub const SCHEMA_VERSION: &str = "2.4";
+pub const SCHEMA_VERSION: &str = "2.5";
 
 /// Width of one angle-histogram bin, in degrees.
 pub const ANGLE_BIN_DEG: f64 = 5.0;
@@ -364,6 +364,14 @@ pub struct WangYuSummary {
     /// would have moved them farther from their input position; `null`
     /// when the run had no bound.
     pub fidelity_held_back: Option<u64>,
+    /// On a mesh cut from no grid: the input's noise estimate, the median
+    /// height of a vertex above the quadric fitted to its 2-ring, in its
+    /// mean edge lengths; each vertex was held within `noise_bound` times
+    /// it (times its mean edge) across its input surface. `null` on a voxel
+    /// or marching-cubes mesh, without `noise_bound` or `max_displacement`,
+    /// or when fewer than 32 vertices have a fit. Since schema 2.5.
+    #[serde(default)]
+    pub input_noise: Option<f64>,
     /// Pairs of triangles joined back into the square voxel faces they
     /// split (a voxel-boundary mesh written as triangles, as STL and glTF
     /// hold it): such a mesh is smoothed as its voxel faces, and every
@@ -389,7 +397,8 @@ pub enum InputGrid {
     /// of a lattice edge, on a grid of any orientation): relaxed between
     /// the initial passes, each vertex held in its edge's slab.
     MarchingCubes,
-    /// Neither: the paper's passes alone, each vertex held in a ball.
+    /// Neither: the paper's passes alone, each vertex held in a ball and,
+    /// across its input surface, by the input's noise (`input_noise`).
     #[default]
     None,
 }

@@ -104,6 +104,72 @@ impl Torus {
         let rho = (d.x * d.x + d.y * d.y).sqrt() - self.major;
         (rho * rho + d.z * d.z).sqrt()
     }
+
+    /// Signed distance from `p` to the surface, positive outside.
+    pub fn signed_distance(&self, p: DVec3) -> f64 {
+        self.tube_distance(p) - self.minor
+    }
+
+    /// The outward unit normal of the surface nearest `p` (`p` off the
+    /// tube's centre circle and the z axis).
+    pub fn normal_at(&self, p: DVec3) -> DVec3 {
+        let d = p - self.center;
+        let radial = DVec3::new(d.x, d.y, 0.0).normalize();
+        (d - self.major * radial).normalize()
+    }
+}
+
+/// A standard normal deviate, the same on every machine for the same
+/// `seed` and index `i` (Box-Muller on a 64-bit mix of both): noise for
+/// test meshes.
+pub fn normal_deviate(seed: u64, i: u64) -> f64 {
+    let uniform = |k: u64| {
+        let mut x =
+            k.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ seed.wrapping_mul(0xD1B5_4A32_D192_ED03);
+        x ^= x >> 31;
+        x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        x ^= x >> 29;
+        x = x.wrapping_mul(0x94D0_49BB_1331_11EB);
+        x ^= x >> 32;
+        ((x >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    };
+    let (u, v) = (uniform(2 * i), uniform(2 * i + 1));
+    (-2.0 * u.ln()).sqrt() * (2.0 * PI * v).cos()
+}
+
+/// The torus about the z axis through the origin and a triangle mesh of
+/// its surface with edges of about `edge`: a grid of `major` and `minor`
+/// angle steps, every vertex exactly on the surface. A mesh of no voxel
+/// grid that is already smooth (as the marching cubes of a probability map
+/// is), to check that smoothing leaves such a surface where it is.
+pub fn tessellated_torus(major: f64, minor: f64, edge: f64) -> (Torus, Mesh) {
+    let t = Torus {
+        center: DVec3::ZERO,
+        major,
+        minor,
+    };
+    let steps = |r: f64| ((2.0 * PI * r / edge).round() as u32).max(3);
+    let (nu, nv) = (steps(major), steps(minor));
+    let mut p = Vec::with_capacity((nu * nv) as usize);
+    for i in 0..nu {
+        let (su, cu) = (2.0 * PI * f64::from(i) / f64::from(nu)).sin_cos();
+        for j in 0..nv {
+            let (sv, cv) = (2.0 * PI * f64::from(j) / f64::from(nv)).sin_cos();
+            let r = major + minor * cv;
+            p.push(DVec3::new(r * cu, r * su, minor * sv));
+        }
+    }
+    let at = |i: u32, j: u32| (i % nu) * nv + j % nv;
+    let mut faces = Vec::with_capacity(2 * p.len());
+    for i in 0..nu {
+        for j in 0..nv {
+            let (a, b, c, d) = (at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1));
+            faces.push([a, b, c]);
+            faces.push([a, c, d]);
+        }
+    }
+    let m = Mesh::from_polygons(p, &faces).expect("a torus grid");
+    (t, m)
 }
 
 impl Shape for Torus {

@@ -28,6 +28,10 @@
 //!   the surface is.
 //! - Any vertex off a voxel lattice (marching cubes, molecular surfaces,
 //!   neurons) is held within a ball around its input position.
+//! - A vertex of a mesh cut from no grid is also held, across the surface,
+//!   within a curved slab about its input surface as wide as a multiple of
+//!   the input's own noise ([`super::noise`]): such a mesh may already be
+//!   smooth, and nothing else says how far its surface may be moved.
 //!
 //! The sizes are `max_displacement` times the lattice's spacing along each
 //! axis (box), times the vertex's mean input edge length (ball) or times the
@@ -39,6 +43,7 @@
 //! spacing differs by axis, or on a lattice the ellipsoid of twice the
 //! box's half-widths: one voxel).
 
+use super::noise::SurfaceSlab;
 use super::project::mean_edge_at;
 use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::mesh::lattice::{MarchingCubesGrid, along_axis, lattice_frame, marching_cubes_grid};
@@ -168,6 +173,10 @@ pub struct FidelityBound {
     /// the grid's axes and the most the quality fixes' ball may reach along
     /// each ([`VoxelCaps`]).
     caps: Option<VoxelCaps>,
+    /// Per vertex, on a mesh of no grid: the slab about its input surface
+    /// that its input's noise allows ([`FidelityBound::across_input_noise`];
+    /// `None` for a vertex the ball alone holds).
+    surface: Option<Arc<[Option<SurfaceSlab>]>>,
 }
 
 /// The reach of the quality fixes' ball along each axis of an anisotropic
@@ -281,6 +290,21 @@ impl FidelityBound {
             widened: false,
             slabs,
             caps,
+            surface: None,
+        }
+    }
+
+    /// This bound with vertex `v` also held in `slabs[v]` across its input
+    /// surface, where it has one ([`super::noise::estimate`]). Only a bound
+    /// of no grid takes them: a voxel corner's box and a marching-cubes
+    /// vertex's slab already say how far the surface may move.
+    pub fn across_input_noise(self, slabs: Vec<Option<SurfaceSlab>>) -> Self {
+        if self.has_lattice() || self.has_marching_cubes() {
+            return self;
+        }
+        FidelityBound {
+            surface: Some(slabs.into()),
+            ..self
         }
     }
 
@@ -295,6 +319,7 @@ impl FidelityBound {
             frame: self.frame,
             spacing: self.spacing,
             slabs: None,
+            surface: self.scaled_surface(factor),
             caps: self.caps.map(|c| c.scaled(factor)),
             widened: true,
             size: self
@@ -312,6 +337,7 @@ impl FidelityBound {
             frame: self.frame,
             spacing: self.spacing,
             widened: self.widened,
+            surface: self.scaled_surface(factor),
             caps: self.caps.map(|c| c.scaled(factor)),
             slabs: self.slabs.as_ref().map(|slabs| {
                 slabs
@@ -354,7 +380,9 @@ impl FidelityBound {
                 let in_slab = self.slab(v).is_none_or(|slab| {
                     d.dot(slab.normal.as_dvec3()).abs()
                         <= f64::from(slab.half_width) * (1.0 + ALLOW_SLACK)
-                });
+                }) && self
+                    .surface_slab(v)
+                    .is_none_or(|slab| slab.contains(d, ALLOW_SLACK));
                 let r = f64::from(s).abs();
                 let in_ball = match self.ball_caps() {
                     Some(caps) => caps.extent(d, r) <= 1.0 + ALLOW_SLACK,
@@ -363,6 +391,20 @@ impl FidelityBound {
                 in_slab && in_ball
             }
         }
+    }
+
+    /// Vertex `v`'s slab about its input surface, if it has one.
+    fn surface_slab(&self, v: usize) -> Option<SurfaceSlab> {
+        self.surface
+            .as_ref()
+            .and_then(|s| s.get(v).copied().flatten())
+    }
+
+    /// The slabs about the input surface, `factor` times as wide.
+    fn scaled_surface(&self, factor: f64) -> Option<Arc<[Option<SurfaceSlab>]>> {
+        self.surface
+            .as_ref()
+            .map(|slabs| slabs.iter().map(|s| s.map(|s| s.scaled(factor))).collect())
     }
 
     /// Vertex `v`'s slab, if it has one.
@@ -437,14 +479,19 @@ impl FidelityBound {
                     let c = c * self.spacing;
                     c.x * frame[0] + c.y * frame[1] + c.z * frame[2]
                 } else {
-                    // The slab first, then the ball: the ball only shortens
-                    // a move, which keeps it in the slab.
+                    // The slabs first, then the ball: the ball only shortens
+                    // a move, which keeps it in a flat slab (and in a curved
+                    // one to within the surface's sag over the shortening,
+                    // a small part of an already small slab).
                     let mut b = d;
                     if let Some(slab) = self.slab(v) {
                         let n = slab.normal.as_dvec3();
                         let w = f64::from(slab.half_width);
                         let across = b.dot(n);
                         b -= (across - across.clamp(-w, w)) * n;
+                    }
+                    if let Some(slab) = self.surface_slab(v) {
+                        b = slab.clamp(b);
                     }
                     let r = -f64::from(s);
                     match self.ball_caps() {

@@ -9,6 +9,7 @@ pub mod initial;
 pub mod label;
 pub mod laplacian;
 pub mod neighbourhood;
+pub mod noise;
 pub mod pinches;
 pub mod project;
 pub mod staircase;
