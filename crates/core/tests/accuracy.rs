@@ -304,13 +304,18 @@ fn without_quality_fixes_the_final_curvature_is_the_adaptive_stages() {
 
 #[test]
 fn output_is_identical_with_one_and_two_threads() {
-    // A torus, and two spheres whose masks touch (non-manifold vertices,
-    // which the sharp-angle fix's second run moves).
+    // A torus, two spheres whose masks touch (non-manifold vertices,
+    // which the sharp-angle fix's second run moves), and a noisy torus of
+    // no grid (the noise estimate and its slabs).
     let (_, torus) = shapes::voxel_torus(10.0, 4.0);
     let touching = shapes::voxel_boundary_mesh(&shapes::voxel_mask(&shapes::placed(
         shapes::sphere_pair(5.0, 0.0),
         0,
     )));
+    let (smooth_torus, mut noisy) = shapes::tessellated_torus(8.0, 2.0, 0.7);
+    for (i, p) in noisy.positions_mut().iter_mut().enumerate() {
+        *p += smooth_torus.normal_at(*p) * 0.07 * shapes::normal_deviate(3, i as u64);
+    }
     let run_with = |m: &Mesh, threads| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -324,7 +329,7 @@ fn output_is_identical_with_one_and_two_threads() {
             .flat_map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
             .collect()
     };
-    for m in [torus, touching] {
+    for m in [torus, touching, noisy] {
         let a = run_with(&m, 1);
         let b = run_with(&m, 2);
         assert_eq!(bits(&a), bits(&b));

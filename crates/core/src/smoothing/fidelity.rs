@@ -479,21 +479,21 @@ impl FidelityBound {
                     let c = c * self.spacing;
                     c.x * frame[0] + c.y * frame[1] + c.z * frame[2]
                 } else {
-                    // The slabs first, then the ball: the ball only shortens
-                    // a move, which keeps it in a flat slab (and in a curved
-                    // one to within the surface's sag over the shortening,
-                    // a small part of an already small slab).
+                    // The slab first, then the ball: the ball only shortens
+                    // a move, which keeps it in a flat slab. A curved slab
+                    // (a mesh of no grid, which has no flat slab and no
+                    // caps) clamps both at once.
                     let mut b = d;
+                    let r = -f64::from(s);
+                    if let Some(slab) = self.surface_slab(v) {
+                        b = slab.clamp_within(b, r);
+                    }
                     if let Some(slab) = self.slab(v) {
                         let n = slab.normal.as_dvec3();
                         let w = f64::from(slab.half_width);
                         let across = b.dot(n);
                         b -= (across - across.clamp(-w, w)) * n;
                     }
-                    if let Some(slab) = self.surface_slab(v) {
-                        b = slab.clamp(b);
-                    }
-                    let r = -f64::from(s);
                     match self.ball_caps() {
                         Some(caps) => {
                             let e = caps.extent(b, r);

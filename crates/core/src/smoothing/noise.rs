@@ -47,6 +47,10 @@ pub const NOISE_RING: usize = 2;
 /// `1.25 / sqrt(n)` of it), and a mesh that small keeps the ball alone.
 pub const MIN_NOISE_FITS: usize = 32;
 
+/// Halvings that find how much of a move stays within the ball in
+/// [`SurfaceSlab::clamp_within`]: to a millionth of a millionth of it.
+const BALL_BISECTIONS: u32 = 40;
+
 /// A curved slab about a vertex's input surface: the points whose height
 /// above the input's quadric through the input position, `h(x, y) = a x^2
 /// + b x y + c y^2 + e x + f y` in the frame of the input normal, is at
@@ -89,6 +93,28 @@ impl SurfaceSlab {
         }
         let l = DVec3::new(l.x, l.y, l.z - (above - above.clamp(-w, w)));
         self.frame().to_world(l)
+    }
+
+    /// Offset `d` brought into the slab and within `radius` of the input
+    /// position, both exactly: into the slab along its normal, and when that
+    /// lies beyond the ball, the same for the longest part of `d` whose
+    /// point does not (bisection; moving a point into a curved slab
+    /// changes its distance, so neither step alone keeps the other's bound).
+    pub fn clamp_within(&self, d: DVec3, radius: f64) -> DVec3 {
+        let inside = self.clamp(d);
+        if inside.length() <= radius {
+            return inside;
+        }
+        let (mut short, mut long) = (0.0, 1.0);
+        for _ in 0..BALL_BISECTIONS {
+            let mid = 0.5 * (short + long);
+            if self.clamp(d * mid).length() <= radius {
+                short = mid;
+            } else {
+                long = mid;
+            }
+        }
+        self.clamp(d * short)
     }
 
     /// The same slab `factor` times as wide.
@@ -228,6 +254,16 @@ mod tests {
         assert!(!slab.contains(out + 0.1 * w * n, 0.0));
         assert!(torus.signed_distance(p[v] + out) < 1.2 * w);
         assert_eq!(slab.clamp(on_surface - p[v]), on_surface - p[v]);
+        // Held in a ball as well: in both, exactly, however far it went.
+        for far in [0.3, 1.0, 5.0] {
+            let d = far * (around + 0.5 * n);
+            let held = slab.clamp_within(d, 0.4);
+            assert!(slab.contains(held, 1e-9), "{far}");
+            assert!(held.length() <= 0.4, "{far}");
+            if far == 0.3 {
+                assert_eq!(held, slab.clamp(d));
+            }
+        }
         assert!((slab.scaled(2.0).half_width() - 2.0 * w).abs() < 1e-9);
     }
 
