@@ -262,11 +262,12 @@ fn flipped_and_reported(browser: &mut Browser) -> (u64, u64) {
 #[test]
 fn a_glb_is_smoothed_shown_and_downloaded_as_glb() {
     let _one = BROWSER.lock().unwrap_or_else(|e| e.into_inner());
-    let (_server, mut browser, dir) = open_page("mc-sphere-glb", &[]);
-    let (_, mesh) = shapes::mc_sphere(12.0);
+    // A smooth mesh of no grid, as a browser app exports one.
+    let (_server, mut browser, dir) = open_page("torus-glb", &[]);
+    let (_, mesh) = shapes::tessellated_torus(10.0, 3.0, 0.7);
     let mut glb = Vec::new();
     write_gltf_plain(&mesh, mesh.positions(), None, true, &mut glb).unwrap();
-    let file = dir.join("mc-sphere.glb");
+    let file = dir.join("torus.glb");
     std::fs::write(&file, &glb).unwrap();
 
     let downloaded = smooth_and_check(&mut browser, &dir, &file);
@@ -280,6 +281,14 @@ fn a_glb_is_smoothed_shown_and_downloaded_as_glb() {
         json!(mesh.num_vertices()),
         "{}",
         downloaded.display()
+    );
+    // The summary gives the noise the input was found to carry.
+    let summary = browser.eval("document.getElementById('summary').textContent");
+    assert!(
+        summary
+            .as_str()
+            .is_some_and(|t| t.contains("input grid: none, input noise 0.00")),
+        "{summary}"
     );
 
     // "Try a sample": the torus from samples/, coloured by mean curvature.

@@ -749,7 +749,9 @@ function showReport(job, report) {
     const l = report.wang_yu.labels;
     const pairs = report.wang_yu.paired_triangles
       ? `, ${report.wang_yu.paired_triangles} triangle pairs read as voxel faces` : '';
-    const grid = report.wang_yu.input_grid ? ` (input grid: ${report.wang_yu.input_grid}${pairs})` : '';
+    const noise = report.wang_yu.input_noise === undefined || report.wang_yu.input_noise === null
+      ? '' : `, input noise ${fmt(report.wang_yu.input_noise, 3)} mean edges`;
+    const grid = report.wang_yu.input_grid ? ` (input grid: ${report.wang_yu.input_grid}${noise}${pairs})` : '';
     out.append(heading(`Labels${grid}`), table(Object.keys(l), [Object.values(l).map(String)]));
   }
   if (report.quality_fixes) {
