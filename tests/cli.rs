@@ -109,6 +109,8 @@ fn smooth_writes_the_mesh_and_a_report() {
         summary.contains("  curvature ") && summary.contains("mean variation"),
         "{summary}"
     );
+    // And the grid the input was cut from.
+    assert!(summary.contains("  grid      voxel\n"), "{summary}");
 
     let out_bytes = std::fs::read(&output).unwrap();
     let smoothed = read_mesh(&out_bytes);

@@ -44,6 +44,22 @@ pub fn smoothed(
         sig(d.max),
         sig(input.mean_edge_length)
     )?;
+    if let Some(wy) = &r.wang_yu {
+        // The grid decides the fidelity bound's shape; off any grid, the
+        // input's noise decides how far across its surface a vertex moved.
+        let grid = serde_json::to_value(wy.input_grid)
+            .ok()
+            .and_then(|v| v.as_str().map(str::to_owned))
+            .unwrap_or_default();
+        match wy.input_noise {
+            Some(noise) => writeln!(
+                w,
+                "  grid      {grid}; input noise {} mean edge lengths",
+                sig(noise)
+            )?,
+            None => writeln!(w, "  grid      {grid}")?,
+        }
+    }
     writeln!(
         w,
         "  angles    {} (input {})",
