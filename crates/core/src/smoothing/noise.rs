@@ -38,8 +38,10 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 /// The rings of a vertex whose quadric predicts it: the fewest that give a
-/// quadric's six coefficients more points than unknowns on any mesh (a
-/// regular triangle mesh's 2-ring has 18).
+/// quadric's six coefficients more points than unknowns on a regular mesh
+/// (a triangle mesh's 2-ring has 18 vertices, a quad mesh's 12); where
+/// fewer face the vertex, the fit falls back to a plane and the vertex
+/// keeps the ball alone.
 pub const NOISE_RING: usize = 2;
 
 /// Fewest fitted vertices that give a noise estimate: the median of fewer
