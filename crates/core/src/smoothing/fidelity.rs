@@ -175,8 +175,9 @@ pub struct FidelityBound {
     caps: Option<VoxelCaps>,
     /// Per vertex, on a mesh of no grid: the slab about its input surface
     /// that its input's noise allows ([`FidelityBound::across_input_noise`];
-    /// `None` for a vertex the ball alone holds).
-    surface: Option<Arc<[Option<SurfaceSlab>]>>,
+    /// `None` for a vertex the ball alone holds), shared by the scaled and
+    /// widened bounds, with the factor this bound widens them by.
+    surface: Option<(Arc<[Option<SurfaceSlab>]>, f64)>,
 }
 
 /// The reach of the quality fixes' ball along each axis of an anisotropic
@@ -303,7 +304,7 @@ impl FidelityBound {
             return self;
         }
         FidelityBound {
-            surface: Some(slabs.into()),
+            surface: Some((slabs.into(), 1.0)),
             ..self
         }
     }
@@ -395,16 +396,21 @@ impl FidelityBound {
 
     /// Vertex `v`'s slab about its input surface, if it has one.
     fn surface_slab(&self, v: usize) -> Option<SurfaceSlab> {
-        self.surface
-            .as_ref()
-            .and_then(|s| s.get(v).copied().flatten())
+        let (slabs, factor) = self.surface.as_ref()?;
+        let slab = slabs.get(v).copied().flatten()?;
+        Some(if *factor == 1.0 {
+            slab
+        } else {
+            slab.scaled(*factor)
+        })
     }
 
-    /// The slabs about the input surface, `factor` times as wide.
-    fn scaled_surface(&self, factor: f64) -> Option<Arc<[Option<SurfaceSlab>]>> {
+    /// The slabs about the input surface, `factor` times as wide (the same
+    /// slabs, not a copy).
+    fn scaled_surface(&self, factor: f64) -> Option<(Arc<[Option<SurfaceSlab>]>, f64)> {
         self.surface
             .as_ref()
-            .map(|slabs| slabs.iter().map(|s| s.map(|s| s.scaled(factor))).collect())
+            .map(|(slabs, f)| (Arc::clone(slabs), f * factor))
     }
 
     /// Vertex `v`'s slab, if it has one.
