@@ -233,6 +233,13 @@ thread_local! {
     static UNITS: RefCell<Vec<u16>> = const { RefCell::new(Vec::new()) };
 }
 
+/// Runs `f` with this thread's ring walker, the one the neighbourhoods
+/// walk with (freed with the rest by [`release_walk_scratch`]): a walk per
+/// vertex in a parallel loop allocates no stamp of its own.
+pub fn with_walker<R>(f: impl FnOnce(&mut RingWalker) -> R) -> R {
+    WALKER.with(|w| f(&mut w.borrow_mut()))
+}
+
 /// Frees the scratch every thread of the pool keeps for walking rings (a
 /// 4-byte stamp per mesh vertex per thread, and the last chunk's lists):
 /// before the adaptive passes, where a run's memory peaks and no ring is

@@ -32,7 +32,8 @@
 use crate::fit::frame::Frame;
 use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::{Facing, FitKind, FitModel, fit_neighbours};
-use crate::mesh::{Mesh, RingWalker, Topology, VertexKind};
+use crate::mesh::{Mesh, Topology, VertexKind};
+use crate::smoothing::neighbourhood::with_walker;
 use crate::smoothing::project::mean_edge_at;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -158,34 +159,33 @@ pub fn estimate(mesh: &Mesh, topo: &Topology, reach: f64, min_cos: f64) -> Optio
     let fits: Vec<Option<(SurfaceSlab, f64, f64)>> = (0..topo.num_vertices())
         .into_par_iter()
         .with_min_len(1024)
-        .map_init(
-            || RingWalker::new(topo.num_vertices()),
-            |walker, v| {
-                let n = normals[v];
-                if topo.kind(v) != VertexKind::Interior || n == Vec3::ZERO {
-                    return None;
-                }
-                let frame = Frame::new(p[v], n.as_dvec3());
+        .map(|v| {
+            let n = normals[v];
+            if topo.kind(v) != VertexKind::Interior || n == Vec3::ZERO {
+                return None;
+            }
+            let frame = Frame::new(p[v], n.as_dvec3());
+            let facing = Facing {
+                normals: &normals,
+                min_cos,
+            };
+            let fit = with_walker(|walker| {
                 let ring = walker.k_ring(topo, v, NOISE_RING);
-                let facing = Facing {
-                    normals: &normals,
-                    min_cos,
-                };
-                let fit = fit_neighbours(&frame, p, ring, FitModel::Quadric, Some(facing));
-                let edge = mean_edge_at(topo, p, v);
-                // A NaN edge (coincident or non-finite input) fits nothing.
-                if fit.kind != FitKind::Quadric || edge.is_nan() || edge <= 0.0 {
-                    return None;
-                }
-                let [a, b, c, e, f, g] = fit.coeffs;
-                let slab = SurfaceSlab {
-                    normal: n,
-                    coeffs: [a, b, c, e, f].map(|x| x as f32),
-                    half_width: 0.0,
-                };
-                Some((slab, g.abs() / edge, edge))
-            },
-        )
+                fit_neighbours(&frame, p, ring, FitModel::Quadric, Some(facing))
+            });
+            let edge = mean_edge_at(topo, p, v);
+            // A NaN edge (coincident or non-finite input) fits nothing.
+            if fit.kind != FitKind::Quadric || edge.is_nan() || edge <= 0.0 {
+                return None;
+            }
+            let [a, b, c, e, f, g] = fit.coeffs;
+            let slab = SurfaceSlab {
+                normal: n,
+                coeffs: [a, b, c, e, f].map(|x| x as f32),
+                half_width: 0.0,
+            };
+            Some((slab, g.abs() / edge, edge))
+        })
         .collect();
     let mut heights: Vec<f64> = fits.iter().flatten().map(|f| f.1).collect();
     if heights.len() < MIN_NOISE_FITS {
