@@ -1,7 +1,9 @@
 //! Analytic test shapes (sphere, torus, ellipsoid) with exact distance
 //! functions, and the meshes a segmentation pipeline makes of them: the
 //! welded quad boundary of a binary voxel mask ([`voxel_boundary_mesh`]) and
-//! its marching-cubes triangulation ([`marching_cubes_mesh`]).
+//! its marching-cubes triangulation ([`marching_cubes_mesh`]); and, for a
+//! mesh cut from no grid, a torus tessellated on its own surface
+//! ([`tessellated_torus`], with seeded noise from [`normal_deviate`]).
 //!
 //! Everything is in voxel units: voxel `(i, j, k)` of a [`VoxelMask`] covers
 //! the unit cube whose lowest corner is `origin + (i, j, k)`, and meshes are
