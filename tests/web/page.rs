@@ -187,13 +187,7 @@ fn a_voxel_sphere_obj_is_smoothed_shown_and_downloaded() {
         "the download defaults to the input's format"
     );
     // The report's summary names the grid the mesh was cut from.
-    let summary = browser.eval("document.getElementById('summary').textContent");
-    assert!(
-        summary
-            .as_str()
-            .is_some_and(|t| t.contains("input grid: voxel")),
-        "{summary}"
-    );
+    assert_summary_says(&mut browser, "input grid: voxel");
     // The colour modes use the result's per-vertex attributes.
     browser.eval("(() => { const s = document.getElementById('colour'); s.value = 'label'; s.dispatchEvent(new Event('change')); return true; })()");
     let legend = browser.eval("document.getElementById('legend').textContent");
@@ -283,13 +277,7 @@ fn a_glb_is_smoothed_shown_and_downloaded_as_glb() {
         downloaded.display()
     );
     // The summary gives the noise the input was found to carry.
-    let summary = browser.eval("document.getElementById('summary').textContent");
-    assert!(
-        summary
-            .as_str()
-            .is_some_and(|t| t.contains("input grid: none, input noise 0.00")),
-        "{summary}"
-    );
+    assert_summary_says(&mut browser, "input grid: none, input noise 0.00");
 
     // "Try a sample": the torus from samples/, coloured by mean curvature.
     browser.eval("document.body.dataset.state = 'test-upload', true");
@@ -463,6 +451,15 @@ fn upload_to_first_render_of_a_large_voxel_sphere() {
 }
 
 /// Writes `mesh` as OBJ to `dir/name`; returns the path and the bytes.
+/// Asserts that the report's summary on the page contains `text`.
+fn assert_summary_says(browser: &mut Browser, text: &str) {
+    let summary = browser.eval("document.getElementById('summary').textContent");
+    assert!(
+        summary.as_str().is_some_and(|t| t.contains(text)),
+        "{text:?} not in {summary}"
+    );
+}
+
 fn write_obj(dir: &Path, name: &str, mesh: &Mesh) -> (PathBuf, usize) {
     let mut obj = Vec::new();
     write_obj_plain(mesh, mesh.positions(), &mut obj).expect("write the OBJ");

@@ -24,7 +24,6 @@ use crate::smoothing::fairing::{FairingPlan, fair};
 use crate::smoothing::fidelity::{Fidelity, FidelityBound};
 use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
-use crate::smoothing::noise;
 use crate::smoothing::pinches::place_pinches;
 use crate::smoothing::project::FitStats;
 use crate::smoothing::staircase::{compensate_shrinkage, relax_staircase};
@@ -766,20 +765,11 @@ pub fn run(
             return (None, None);
         };
         let bound = FidelityBound::new(mesh, topo, d);
-        if bound.has_lattice() || bound.has_marching_cubes() {
-            return (Some(bound), None);
-        }
-        let noise = params.noise_bound.and_then(|k| {
-            let _s = tracing::info_span!("input_noise").entered();
-            noise::estimate(mesh, topo, k, params.min_normal_cos())
-        });
-        match noise {
-            Some(noise) => (
-                Some(bound.across_input_noise(noise.slabs)),
-                Some(noise.median),
-            ),
-            None => (Some(bound), None),
-        }
+        let (bound, noise) = match params.noise_bound {
+            Some(k) => bound.across_input_noise(mesh, topo, k, params.min_normal_cos()),
+            None => (bound, None),
+        };
+        (Some(bound), noise)
     });
     let quality_bound = bound.as_ref().map(|b| b.widened(QUALITY_ROOM));
     let fidelity = Fidelity::new(bound.as_ref(), mesh.positions());

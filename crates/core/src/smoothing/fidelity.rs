@@ -43,7 +43,7 @@
 //! spacing differs by axis, or on a lattice the ellipsoid of twice the
 //! box's half-widths: one voxel).
 
-use super::noise::SurfaceSlab;
+use super::noise::{self, SurfaceSlab};
 use super::project::mean_edge_at;
 use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::mesh::lattice::{MarchingCubesGrid, along_axis, lattice_frame, marching_cubes_grid};
@@ -295,17 +295,33 @@ impl FidelityBound {
         }
     }
 
-    /// This bound with vertex `v` also held in `slabs[v]` across its input
-    /// surface, where it has one ([`super::noise::estimate`]). Only a bound
-    /// of no grid takes them: a voxel corner's box and a marching-cubes
-    /// vertex's slab already say how far the surface may move.
-    pub fn across_input_noise(self, slabs: Vec<Option<SurfaceSlab>>) -> Self {
+    /// This bound with each vertex of `mesh` also held across its input
+    /// surface within `reach` times the input's noise ([`noise::estimate`],
+    /// neighbours facing below `min_cos` left out of the fits), and the
+    /// estimate. Only a bound of no grid takes slabs: a voxel corner's box
+    /// and a marching-cubes vertex's slab already say how far the surface
+    /// may move, and there no estimate is made. Unchanged, with no
+    /// estimate, when the mesh has too few fits for one.
+    pub fn across_input_noise(
+        self,
+        mesh: &Mesh,
+        topo: &Topology,
+        reach: f64,
+        min_cos: f64,
+    ) -> (Self, Option<f64>) {
         if self.has_lattice() || self.has_marching_cubes() {
-            return self;
+            return (self, None);
         }
-        FidelityBound {
-            surface: Some((slabs.into(), 1.0)),
-            ..self
+        let _s = tracing::info_span!("input_noise").entered();
+        match noise::estimate(mesh, topo, reach, min_cos) {
+            Some(noise) => (
+                FidelityBound {
+                    surface: Some((noise.slabs.into(), 1.0)),
+                    ..self
+                },
+                Some(noise.median),
+            ),
+            None => (self, None),
         }
     }
 

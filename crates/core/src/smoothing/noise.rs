@@ -73,29 +73,29 @@ impl SurfaceSlab {
     }
 
     /// How far offset `d` from the input position lies above the input's
-    /// surface, in the slab's frame, with the offset in that frame.
-    fn height_above(&self, d: DVec3) -> (DVec3, f64) {
-        let l = self.frame().to_local(d);
+    /// surface, with the slab's frame and the offset in it.
+    fn height_above(&self, d: DVec3) -> (Frame, DVec3, f64) {
+        let frame = self.frame();
+        let l = frame.to_local(d);
         let [a, b, c, e, f] = self.coeffs.map(f64::from);
         let surface = a * l.x * l.x + b * l.x * l.y + c * l.y * l.y + e * l.x + f * l.y;
-        (l, l.z - surface)
+        (frame, l, l.z - surface)
     }
 
     /// Whether offset `d` lies in the slab (with a relative `slack`).
     pub fn contains(&self, d: DVec3, slack: f64) -> bool {
-        self.height_above(d).1.abs() <= f64::from(self.half_width) * (1.0 + slack)
+        self.height_above(d).2.abs() <= f64::from(self.half_width) * (1.0 + slack)
     }
 
     /// Offset `d` moved along the slab's normal into the slab: unchanged
     /// when it is in it.
     pub fn clamp(&self, d: DVec3) -> DVec3 {
-        let (l, above) = self.height_above(d);
+        let (frame, l, above) = self.height_above(d);
         let w = f64::from(self.half_width);
         if above.abs() <= w {
             return d;
         }
-        let l = DVec3::new(l.x, l.y, l.z - (above - above.clamp(-w, w)));
-        self.frame().to_world(l)
+        frame.to_world(DVec3::new(l.x, l.y, l.z - (above - above.clamp(-w, w))))
     }
 
     /// Offset `d` brought into the slab and within `radius` of the input
