@@ -247,12 +247,13 @@ pub struct Params {
     /// map, a blurred or decimated mask's mesh, a molecular surface): how
     /// far a vertex may move across its input surface, in multiples of the
     /// input's noise. The noise is estimated from the input itself: the
-    /// median height of a vertex above the quadric fitted to its 2-ring, in
-    /// its mean edge lengths (reported as `wang_yu.input_noise`). Such a
-    /// mesh may already be smooth, and the passes' fits would reshape its
-    /// folds; independent noise of standard deviation `sigma` gives an
-    /// estimate of about `0.75 sigma`, so the default 4 lets a vertex move
-    /// three standard deviations of it. The distance across is measured
+    /// median height of a vertex above the quadric with cubic terms fitted
+    /// to its 2-ring, in its mean edge lengths (reported as
+    /// `wang_yu.input_noise`). Such a mesh may already be smooth, and the
+    /// passes' fits would reshape its folds; independent noise of standard
+    /// deviation `sigma` gives an estimate of about `0.85 sigma`, so the
+    /// default 4 lets a vertex move three to four standard deviations of
+    /// it. The distance across is measured
     /// from the input's own quadric through the vertex, so moves along a
     /// curved surface are free (within `max_displacement`). Needs
     /// `max_displacement`; `null` holds such vertices in its ball alone.

@@ -12,17 +12,24 @@
 //! by as much as the ball of the bound lets them.
 //!
 //! The input says how rough it is. Each interior vertex's height above the
-//! quadric fitted to its 2-ring (the vertex itself left out, as the passes'
+//! surface fitted to its 2-ring (the vertex itself left out, as the passes'
 //! fits do, [`crate::fit::quadric_fit`]) is its surface's failure to
-//! predict it: noise, plus shape at the scale of an edge. Their median over
-//! the mesh, in mean edge lengths, is the mesh's noise estimate; where the
-//! vertices carry independent noise of standard deviation `sigma` along the
-//! normal, it is about `0.75 sigma` (the median of a normal deviate's
-//! absolute value, `0.674 sigma`, times the spread the fit's own error adds).
-//! A vertex may then move across its input surface by [`Params::noise_bound`]
-//! times that estimate (times its own mean edge): the default 4 is three
-//! standard deviations of such noise, which lets the passes take out the
-//! noise and keeps them from reshaping a surface that has none. Along the
+//! predict it: noise, plus shape at the scale of an edge that the fit
+//! cannot follow. The fit that predicts is the quadric with its cubic terms
+//! ([`FitModel::Cubic`]): across a fold two or three edges wide the
+//! curvature changes sign within a 2-ring, which a quadric's prediction
+//! would count as noise of a tenth of an edge on a clean fold, and the
+//! cubic terms take up. Their median over the mesh, in mean edge lengths,
+//! is the mesh's noise estimate; where the vertices carry independent noise
+//! of standard deviation `sigma` along the normal, it is about `0.85 sigma`
+//! (the median of a normal deviate's absolute value, `0.674 sigma`, times
+//! the spread the fit's own prediction error adds, which ten coefficients
+//! widen more than six). A vertex may then move across its input surface
+//! by [`Params::noise_bound`] times that estimate (times its own mean edge):
+//! the default 4 is three to four standard deviations of such noise, which
+//! lets the passes take out the noise and keeps them from reshaping a
+//! surface that has none. The slab's shape is the quadric's alone: its
+//! curvature at the vertex, without the cubic terms' tilt away from it. Along the
 //! surface the ball of the bound still decides, and "across" is measured
 //! from the input's own quadric through the input position, so a move along
 //! a curved surface is not a move across it.
@@ -38,11 +45,12 @@ use crate::smoothing::project::mean_edge_at;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
-/// The rings of a vertex whose quadric predicts it: the fewest that give a
+/// The rings of a vertex whose fit predicts it: the fewest that give a
 /// quadric's six coefficients more points than unknowns on a regular mesh
-/// (a triangle mesh's 2-ring has 18 vertices, a quad mesh's 12); where
-/// fewer face the vertex, the fit falls back to a plane and the vertex
-/// keeps the ball alone.
+/// (a triangle mesh's 2-ring has 18 vertices, enough for the cubic's ten;
+/// a quad mesh's 12, where the quadric predicts alone); where fewer face
+/// the vertex, the fit falls back to a plane and the vertex keeps the ball
+/// alone.
 pub const NOISE_RING: usize = 2;
 
 /// Fewest fitted vertices that give a noise estimate: the median of fewer
@@ -138,8 +146,8 @@ impl SurfaceSlab {
 /// The input's noise estimate and the slabs it gives.
 #[derive(Debug, Clone)]
 pub struct InputNoise {
-    /// Median height of an interior vertex above its 2-ring's quadric, in
-    /// mean edge lengths of that vertex.
+    /// Median height of an interior vertex above its 2-ring's fit (the
+    /// quadric with its cubic terms), in mean edge lengths of that vertex.
     pub median: f64,
     /// Per vertex: its slab, `reach` times the median times its mean edge
     /// either way, or `None` (not interior, no quadric fitted) where the
@@ -169,22 +177,30 @@ pub fn estimate(mesh: &Mesh, topo: &Topology, reach: f64, min_cos: f64) -> Optio
                 normals: &normals,
                 min_cos,
             };
-            let fit = with_walker(|walker| {
+            let (fit, predicted) = with_walker(|walker| {
                 let ring = walker.k_ring(topo, v, NOISE_RING);
-                fit_neighbours(&frame, p, ring, FitModel::Quadric, Some(facing))
+                let fit = fit_neighbours(&frame, p, ring, FitModel::Quadric, Some(facing));
+                let cubic = fit_neighbours(&frame, p, ring, FitModel::Cubic, Some(facing));
+                // Too few points for the cubic terms: the quadric predicts.
+                let predicted = if cubic.kind == FitKind::Cubic {
+                    cubic.height()
+                } else {
+                    fit.height()
+                };
+                (fit, predicted)
             });
             let edge = mean_edge_at(topo, p, v);
             // A NaN edge (coincident or non-finite input) fits nothing.
             if fit.kind != FitKind::Quadric || edge.is_nan() || edge <= 0.0 {
                 return None;
             }
-            let [a, b, c, e, f, g] = fit.coeffs;
+            let [a, b, c, e, f, _] = fit.coeffs;
             let slab = SurfaceSlab {
                 normal: n,
                 coeffs: [a, b, c, e, f].map(|x| x as f32),
                 half_width: 0.0,
             };
-            Some((slab, g.abs() / edge, edge))
+            Some((slab, predicted.abs() / edge, edge))
         })
         .collect();
     let mut heights: Vec<f64> = fits.iter().flatten().map(|f| f.1).collect();
@@ -209,24 +225,86 @@ pub fn estimate(mesh: &Mesh, topo: &Topology, reach: f64, min_cos: f64) -> Optio
 mod tests {
     use super::*;
     use crate::shapes::{normal_deviate, tessellated_torus};
+    use std::f64::consts::TAU;
 
     #[test]
     fn the_estimate_follows_the_noise_and_not_the_shape() {
         let (torus, mesh) = tessellated_torus(10.0, 2.5, 0.7);
         let topo = Topology::build(&mesh);
         let clean = estimate(&mesh, &topo, 4.0, 0.5).expect("a torus has quadrics");
-        // On the surface: the quadric predicts each vertex to a small
-        // fraction of an edge.
+        // On the surface: the fit predicts each vertex to a small fraction
+        // of an edge.
         assert!(clean.median < 0.01, "{}", clean.median);
         assert!(clean.slabs.iter().all(Option::is_some));
-        let edge = mesh.mean_edge_length();
         for sigma in [0.05, 0.1, 0.2] {
-            let mut noisy = mesh.clone();
-            for (i, q) in noisy.positions_mut().iter_mut().enumerate() {
-                *q += torus.normal_at(*q) * sigma * edge * normal_deviate(1, i as u64);
-            }
-            let m = estimate(&noisy, &topo, 4.0, 0.5).expect("fits").median;
+            let m = estimate_with_noise(&mesh, &topo, sigma, |_, q| torus.normal_at(q));
             assert!(m > 0.6 * sigma && m < 0.95 * sigma, "sigma {sigma}: {m}");
+        }
+    }
+
+    /// The estimate of `mesh` with seeded normal noise of `sigma` mean
+    /// edges along `normal(vertex, position)`.
+    fn estimate_with_noise(
+        mesh: &Mesh,
+        topo: &Topology,
+        sigma: f64,
+        normal: impl Fn(usize, DVec3) -> DVec3,
+    ) -> f64 {
+        let edge = mesh.mean_edge_length();
+        let mut noisy = mesh.clone();
+        for (i, q) in noisy.positions_mut().iter_mut().enumerate() {
+            *q += normal(i, *q) * sigma * edge * normal_deviate(1, i as u64);
+        }
+        estimate(&noisy, topo, 4.0, 0.5).expect("fits").median
+    }
+
+    /// A clean folded sheet `z = amplitude sin(2 pi x / wavelength)` over
+    /// a 40 x 40 grid of unit spacing whose points are jittered along the
+    /// sheet by a normal deviate of `0.3` (clamped to 1.5 of it), as a
+    /// marching-cubes mesh of a smooth map places them: no two 2-rings
+    /// alike, none symmetric.
+    fn folded_sheet(wavelength: f64, amplitude: f64) -> Mesh {
+        let n = 40u32;
+        let jitter = |seed, k| 0.3 * normal_deviate(seed, u64::from(k)).clamp(-1.5, 1.5);
+        let mut p = Vec::new();
+        for i in 0..n {
+            for j in 0..n {
+                let x = f64::from(i) + jitter(5, i * n + j);
+                let y = f64::from(j) + jitter(6, i * n + j);
+                p.push(DVec3::new(x, y, amplitude * (TAU * x / wavelength).sin()));
+            }
+        }
+        let mut faces = Vec::new();
+        for i in 0..n - 1 {
+            for j in 0..n - 1 {
+                let (a, b, c, d) = (
+                    i * n + j,
+                    (i + 1) * n + j,
+                    (i + 1) * n + j + 1,
+                    i * n + j + 1,
+                );
+                faces.push([a, b, c]);
+                faces.push([a, c, d]);
+            }
+        }
+        Mesh::from_polygons(p, &faces).expect("a grid")
+    }
+
+    #[test]
+    fn a_folds_changing_curvature_is_not_noise() {
+        // A fold six edges long and one edge deep, like a gyrus of a
+        // marching-cubes cortex: its curvature changes sign across a
+        // 2-ring, which a quadric's prediction counts as noise and the
+        // cubic's takes up.
+        let mesh = folded_sheet(6.0, 1.0);
+        let topo = Topology::build(&mesh);
+        let clean = estimate(&mesh, &topo, 4.0, 0.5).expect("fits").median;
+        assert!(clean < 0.03, "{clean}");
+        // Noise on the fold is still seen as noise.
+        let normals = vertex_normals_f32_by_faces(&mesh, &topo, mesh.positions());
+        for sigma in [0.05, 0.1, 0.2] {
+            let m = estimate_with_noise(&mesh, &topo, sigma, |i, _| normals[i].as_dvec3());
+            assert!(m > 0.6 * sigma && m < 1.1 * sigma, "sigma {sigma}: {m}");
         }
     }
 
