@@ -255,8 +255,11 @@ pub struct Params {
     /// default 4 lets a vertex move three to four standard deviations of
     /// it. The distance across is measured
     /// from the input's own quadric through the vertex, so moves along a
-    /// curved surface are free (within `max_displacement`). Needs
-    /// `max_displacement`; `null` holds such vertices in its ball alone.
+    /// curved surface are free (within `max_displacement`). After the
+    /// passes, the move across that a vertex shares with its 1-ring (the
+    /// fits' bias, which flattens folds; noise averages out over a ring) is
+    /// taken back. Needs `max_displacement`; `null` holds such vertices in
+    /// its ball alone and takes nothing back.
     /// Default 4; range 0 < k <= 100.
     pub noise_bound: Option<f64>,
     /// What boundary vertices do. Default `fixed`.

@@ -24,6 +24,7 @@ use crate::smoothing::fairing::{FairingPlan, fair};
 use crate::smoothing::fidelity::{Fidelity, FidelityBound};
 use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
+use crate::smoothing::local_height::take_back_drift;
 use crate::smoothing::pinches::place_pinches;
 use crate::smoothing::project::FitStats;
 use crate::smoothing::staircase::{compensate_shrinkage, relax_staircase};
@@ -384,6 +385,7 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
             progress.update(Stage::Adaptive, p as f64 / passes.max(1) as f64)
         })
     })?;
+    timings.time(Stage::Adaptive, || local_height_stage(run, &mut positions));
     timings.time(Stage::Adaptive, || lowpass_stage(run, &mut positions));
     let (volume, volume_not_restored) = timings.time(Stage::Adaptive, || {
         restore_after_passes(run, &mut positions)
@@ -598,6 +600,27 @@ fn growth_rule(params: &Params, edge_length: f64) -> GrowthRule {
         label_margin: params.label_margin,
         label_disagreement: params.label_disagreement,
     }
+}
+
+/// On a mesh of no grid whose noise bounds the move across
+/// ([`Params::noise_bound`]): the passes' drift across the input surface
+/// taken back ([`take_back_drift`]), within the fidelity bound.
+fn local_height_stage(run: &Run, positions: &mut [DVec3]) {
+    let Some(bound) = run.bound.filter(|b| b.has_surface()) else {
+        return;
+    };
+    let _s = tracing::info_span!("local_height").entered();
+    let min_cos = run.params.min_normal_cos();
+    let taken = take_back_drift(
+        run.topo,
+        run.mesh.positions(),
+        positions,
+        run.movable,
+        min_cos,
+        |v| bound.surface_normal(v),
+    );
+    tracing::debug!(taken_back_rms = taken, "drift across the input surface");
+    run.fidelity.apply(positions);
 }
 
 /// The closing low-pass on a voxel lattice

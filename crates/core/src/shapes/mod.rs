@@ -3,7 +3,8 @@
 //! welded quad boundary of a binary voxel mask ([`voxel_boundary_mesh`]) and
 //! its marching-cubes triangulation ([`marching_cubes_mesh`]); and, for a
 //! mesh cut from no grid, a torus tessellated on its own surface
-//! ([`tessellated_torus`], with seeded noise from [`normal_deviate`]).
+//! ([`tessellated_torus`], with seeded noise from [`normal_deviate`]) and a
+//! folded sheet tessellated on its own surface ([`tessellated_sine_sheet`]).
 //!
 //! Everything is in voxel units: voxel `(i, j, k)` of a [`VoxelMask`] covers
 //! the unit cube whose lowest corner is `origin + (i, j, k)`, and meshes are
@@ -15,6 +16,7 @@ mod ellipsoid;
 mod limits;
 mod marching_cubes;
 mod segmentation;
+mod sheet;
 mod voxel;
 
 pub use limits::{big_face, double_cones, fan, prisms};
@@ -23,6 +25,7 @@ pub use segmentation::{
     FoldedSheet, Placed, Shell, SpherePair, edge_touching_blocks, folded_sheet, placed, placement,
     placement_families, shell, sphere_pair, tube,
 };
+pub use sheet::{SineSheet, tessellated_sine_sheet};
 pub use voxel::{VOXEL_MARGIN, VoxelMask, voxel_boundary_mesh, voxel_mask};
 
 use crate::mesh::Mesh;

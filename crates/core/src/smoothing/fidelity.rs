@@ -467,6 +467,19 @@ impl FidelityBound {
         self.frame.is_some()
     }
 
+    /// Whether vertices have slabs about their input surface (a mesh of no
+    /// grid whose noise was estimated).
+    pub fn has_surface(&self) -> bool {
+        self.surface.is_some()
+    }
+
+    /// Vertex `v`'s input normal where it has a slab about its input
+    /// surface ([`FidelityBound::across_input_noise`]): on a mesh of no
+    /// grid whose noise was estimated, at an interior vertex with a fit.
+    pub fn surface_normal(&self, v: usize) -> Option<DVec3> {
+        self.surface_slab(v).map(|slab| slab.normal())
+    }
+
     /// Whether the mesh was recognised as a marching-cubes mesh of a mask
     /// (its vertices have slabs).
     pub fn has_marching_cubes(&self) -> bool {

@@ -8,6 +8,7 @@ pub mod fidelity;
 pub mod initial;
 pub mod label;
 pub mod laplacian;
+pub mod local_height;
 pub mod neighbourhood;
 pub mod noise;
 pub mod pinches;

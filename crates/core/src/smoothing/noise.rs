@@ -128,6 +128,11 @@ impl SurfaceSlab {
         self.clamp(d * short)
     }
 
+    /// The input normal the slab is measured along (unit).
+    pub fn normal(&self) -> DVec3 {
+        self.normal.as_dvec3().normalize()
+    }
+
     /// The same slab `factor` times as wide.
     pub fn scaled(self, factor: f64) -> Self {
         SurfaceSlab {
@@ -224,8 +229,7 @@ pub fn estimate(mesh: &Mesh, topo: &Topology, reach: f64, min_cos: f64) -> Optio
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::shapes::{normal_deviate, tessellated_torus};
-    use std::f64::consts::TAU;
+    use crate::shapes::{normal_deviate, tessellated_sine_sheet, tessellated_torus};
 
     #[test]
     fn the_estimate_follows_the_noise_and_not_the_shape() {
@@ -258,45 +262,13 @@ mod tests {
         estimate(&noisy, topo, 4.0, 0.5).expect("fits").median
     }
 
-    /// A clean folded sheet `z = amplitude sin(2 pi x / wavelength)` over
-    /// a 40 x 40 grid of unit spacing whose points are jittered along the
-    /// sheet by a normal deviate of `0.3` (clamped to 1.5 of it), as a
-    /// marching-cubes mesh of a smooth map places them: no two 2-rings
-    /// alike, none symmetric.
-    fn folded_sheet(wavelength: f64, amplitude: f64) -> Mesh {
-        let n = 40u32;
-        let jitter = |seed, k| 0.3 * normal_deviate(seed, u64::from(k)).clamp(-1.5, 1.5);
-        let mut p = Vec::new();
-        for i in 0..n {
-            for j in 0..n {
-                let x = f64::from(i) + jitter(5, i * n + j);
-                let y = f64::from(j) + jitter(6, i * n + j);
-                p.push(DVec3::new(x, y, amplitude * (TAU * x / wavelength).sin()));
-            }
-        }
-        let mut faces = Vec::new();
-        for i in 0..n - 1 {
-            for j in 0..n - 1 {
-                let (a, b, c, d) = (
-                    i * n + j,
-                    (i + 1) * n + j,
-                    (i + 1) * n + j + 1,
-                    i * n + j + 1,
-                );
-                faces.push([a, b, c]);
-                faces.push([a, c, d]);
-            }
-        }
-        Mesh::from_polygons(p, &faces).expect("a grid")
-    }
-
     #[test]
     fn a_folds_changing_curvature_is_not_noise() {
         // A fold six edges long and one edge deep, like a gyrus of a
         // marching-cubes cortex: its curvature changes sign across a
         // 2-ring, which a quadric's prediction counts as noise and the
         // cubic's takes up.
-        let mesh = folded_sheet(6.0, 1.0);
+        let (_, mesh) = tessellated_sine_sheet(6.0, 1.0, 40);
         let topo = Topology::build(&mesh);
         let clean = estimate(&mesh, &topo, 4.0, 0.5).expect("fits").median;
         assert!(clean < 0.03, "{clean}");
