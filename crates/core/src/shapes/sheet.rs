@@ -20,6 +20,11 @@ pub struct SineSheet {
 /// before it refines the nearest.
 const DISTANCE_SAMPLES: usize = 256;
 
+/// Ternary-search steps that refine the nearest sample: each keeps two
+/// thirds of the interval, so 60 take a sample's spacing below `1e-10` of
+/// itself.
+const DISTANCE_REFINEMENTS: u32 = 60;
+
 impl SineSheet {
     fn height(&self, x: f64) -> f64 {
         self.amplitude * (TAU * x / self.wavelength).sin()
@@ -40,7 +45,7 @@ impl SineSheet {
             .min_by(|&a, &b| d2(a).total_cmp(&d2(b)))
             .unwrap_or(p.x);
         let (mut lo, mut hi) = (best - step, best + step);
-        for _ in 0..60 {
+        for _ in 0..DISTANCE_REFINEMENTS {
             let (a, b) = (lo + (hi - lo) / 3.0, hi - (hi - lo) / 3.0);
             if d2(a) < d2(b) {
                 hi = b;

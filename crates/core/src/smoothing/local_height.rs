@@ -53,19 +53,24 @@ pub fn take_back_drift(
 ) -> f64 {
     let current: &[DVec3] = positions;
     let n = topo.num_vertices();
+    let normals: Vec<Option<DVec3>> = (0..n)
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(&normal)
+        .collect();
     let across: Vec<Option<f64>> = (0..n)
         .into_par_iter()
         .with_min_len(1024)
-        .map(|v| normal(v).map(|m| (current[v] - input[v]).dot(m)))
+        .map(|v| normals[v].map(|m| (current[v] - input[v]).dot(m)))
         .collect();
     // The mean of `values` over `v`'s facing neighbours.
     let ring_mean = |v: usize, values: &[Option<f64>]| {
-        let m = normal(v)?;
+        let m = normals[v]?;
         let (mut sum, mut count) = (0.0, 0usize);
         for &j in topo.neighbors(v) {
             let j = j as usize;
             if let Some(x) = values[j]
-                && normal(j).is_some_and(|k| k.dot(m) >= min_cos)
+                && normals[j].is_some_and(|k| k.dot(m) >= min_cos)
             {
                 sum += x;
                 count += 1;
@@ -88,7 +93,7 @@ pub fn take_back_drift(
             if !movable.get(v).copied().unwrap_or(false) {
                 return None;
             }
-            Some(normal(v)? * ring_mean(v, &lazy)?)
+            Some(normals[v]? * ring_mean(v, &lazy)?)
         })
         .collect();
     let (mut squares, mut count) = (0.0, 0usize);

@@ -28,11 +28,11 @@
 //! by [`Params::noise_bound`] times that estimate (times its own mean edge):
 //! the default 4 is three to four standard deviations of such noise, which
 //! lets the passes take out the noise and keeps them from reshaping a
-//! surface that has none. The slab's shape is the quadric's alone: its
-//! curvature at the vertex, without the cubic terms' tilt away from it. Along the
-//! surface the ball of the bound still decides, and "across" is measured
-//! from the input's own quadric through the input position, so a move along
-//! a curved surface is not a move across it.
+//! surface that has none. Along the surface the ball of the bound still
+//! decides, and "across" is measured from the input's own quadric through
+//! the input position (the quadric alone: its curvature at the vertex,
+//! without the cubic terms' tilt away from it), so a move along a curved
+//! surface is not a move across it.
 //!
 //! [`Params::noise_bound`]: crate::Params::noise_bound
 
