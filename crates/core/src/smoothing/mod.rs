@@ -15,4 +15,5 @@ pub mod pinches;
 pub mod project;
 pub mod staircase;
 pub mod taubin;
+pub mod thin_runs;
 pub mod volume;
