@@ -416,8 +416,8 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 /// fits also give the input's curvature, and the second, and gives back the
 /// local shrinkage of its umbrella steps ([`compensate_shrinkage`]); before
 /// it, the crossings of one-voxel slits and sheets move toward their voxel
-/// ([`shift_thin_runs`]); a mesh
-/// that samples no lattice gets the paper's passes alone. On a voxel
+/// ([`shift_thin_runs`]). A mesh that samples no lattice gets the paper's
+/// passes alone. On a voxel
 /// lattice the relaxation, over all neighbours, and the fairing
 /// ([`fair_staircase`]) replace the passes ([`Params::staircase_steps`]),
 /// and the input's curvature comes from the same 2-ring fits made without
