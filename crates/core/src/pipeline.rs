@@ -29,7 +29,6 @@ use crate::smoothing::pinches::place_pinches;
 use crate::smoothing::project::FitStats;
 use crate::smoothing::staircase::{compensate_shrinkage, relax_staircase};
 use crate::smoothing::taubin::{LOWPASS_LAMBDA, LOWPASS_MU, taubin_in_place};
-use crate::smoothing::thin_runs::shift_thin_runs;
 use crate::smoothing::volume::{MAX_VOLUME_OFFSET, Restored, VolumeParts, restore_volume};
 use crate::smoothing::{laplacian::laplacian_smooth, taubin::taubin_smooth};
 use glam::{DVec3, Vec3};
@@ -414,10 +413,8 @@ fn wang_yu(run: &Run, timings: &mut Timings) -> Result<WangYuRun, Cancelled> {
 /// ([`Params::marching_cubes_initial_passes`] passes) the staircase
 /// relaxation ([`relax_staircase`]) runs between the first pass, whose
 /// fits also give the input's curvature, and the second, and gives back the
-/// local shrinkage of its umbrella steps ([`compensate_shrinkage`]); before
-/// it, the crossings of one-voxel slits and sheets move toward their voxel
-/// ([`shift_thin_runs`]). A mesh that samples no lattice gets the paper's
-/// passes alone. On a voxel
+/// local shrinkage of its umbrella steps ([`compensate_shrinkage`]); a mesh
+/// that samples no lattice gets the paper's passes alone. On a voxel
 /// lattice the relaxation, over all neighbours, and the fairing
 /// ([`fair_staircase`]) replace the passes ([`Params::staircase_steps`]),
 /// and the input's curvature comes from the same 2-ring fits made without
@@ -509,21 +506,6 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
         })
     };
     let (mut fits, input_curvature) = some_passes(positions, passes.min(1), 0, true)?;
-    // After the first pass, whose fits give the input's curvature: the
-    // crossings of one-voxel slits and sheets move toward their voxel, where
-    // the mask's midpoints put them a voxel across.
-    if run.marching_cubes
-        && let Some(grid) = run.bound.and_then(|b| b.marching_cubes_grid())
-    {
-        let moved = shift_thin_runs(
-            grid,
-            run.mesh.positions(),
-            positions,
-            run.movable,
-            run.fidelity,
-        );
-        tracing::debug!(moved, "one-voxel runs' crossings moved");
-    }
     if passes > 1 {
         if run.marching_cubes {
             relax_staircase(

@@ -178,9 +178,6 @@ pub struct FidelityBound {
     /// `None` for a vertex the ball alone holds), shared by the scaled and
     /// widened bounds, with the factor this bound widens them by.
     surface: Option<(Arc<[Option<SurfaceSlab>]>, f64)>,
-    /// The grid of a marching-cubes mesh of a mask, which the slabs were
-    /// built on (`None` on the quality fixes' room, which has no slabs).
-    grid: Option<Arc<MarchingCubesGrid>>,
 }
 
 /// The reach of the quality fixes' ball along each axis of an anisotropic
@@ -286,9 +283,7 @@ impl FidelityBound {
         let caps = grid
             .as_ref()
             .and_then(|grid| VoxelCaps::of(grid, max_displacement));
-        let slabs = grid
-            .as_ref()
-            .map(|grid| marching_cubes_slabs(mesh, topo, max_displacement, grid));
+        let slabs = grid.map(|grid| marching_cubes_slabs(mesh, topo, max_displacement, &grid));
         FidelityBound {
             frame,
             spacing,
@@ -297,7 +292,6 @@ impl FidelityBound {
             slabs,
             caps,
             surface: None,
-            grid: grid.map(Arc::new),
         }
     }
 
@@ -345,7 +339,6 @@ impl FidelityBound {
             surface: self.scaled_surface(factor),
             caps: self.caps.map(|c| c.scaled(factor)),
             widened: true,
-            grid: None,
             size: self
                 .size
                 .iter()
@@ -361,7 +354,6 @@ impl FidelityBound {
             frame: self.frame,
             spacing: self.spacing,
             widened: self.widened,
-            grid: self.grid.clone(),
             surface: self.scaled_surface(factor),
             caps: self.caps.map(|c| c.scaled(factor)),
             slabs: self.slabs.as_ref().map(|slabs| {
@@ -492,12 +484,6 @@ impl FidelityBound {
     /// (its vertices have slabs).
     pub fn has_marching_cubes(&self) -> bool {
         self.slabs.is_some()
-    }
-
-    /// The grid of a marching-cubes mesh of a mask, when the mesh was
-    /// recognised as one (not on the quality fixes' room).
-    pub fn marching_cubes_grid(&self) -> Option<&MarchingCubesGrid> {
-        self.grid.as_deref()
     }
 
     /// Brings every vertex of `positions` back within its bound around

@@ -15,5 +15,4 @@ pub mod pinches;
 pub mod project;
 pub mod staircase;
 pub mod taubin;
-pub mod thin_runs;
 pub mod volume;
