@@ -1,15 +1,23 @@
-"""Where a voxel-quad result's distance to the truth comes from: signed
-truth error per corner configuration (how many of the 8 voxels around a
-lattice corner are inside the mask: 1 a convex corner, 4 a flat face, 7 a
-concave corner) and at the non-manifold vertices, for meshsmooth runs and,
-for reference, two full uniform umbrella steps over every vertex.
+"""Where a result's distance to the truth comes from. On voxel quads (`wm`,
+`gm`): signed truth error per corner configuration (how many of the 8
+voxels around a lattice corner are inside the mask: 1 a convex corner, 4 a
+flat face, 7 a concave corner) and at the non-manifold vertices. On
+marching cubes (`wm_mc`, `gm_mc`): per run of voxels along each vertex's
+lattice edge (a slit: the edge's outside voxel has an inside one beyond
+it; a sheet: its inside voxel has an outside one behind it; both; neither),
+where a thresholded map's thin parts are. For meshsmooth runs and, for
+reference, two full uniform umbrella steps over every vertex and, on
+marching cubes, one PyMeshLab cotangent Laplacian step (the best peer
+setting on the GM map's own marching cubes).
 
-    python3 eval/truth_breakdown.py wm|gm ["CLI ARGS" ...]
+    python3 eval/truth_breakdown.py wm|gm|wm_mc|gm_mc [--mesh FILE.obj] ["CLI ARGS" ...]
 
-Each argument is one meshsmooth run ("" = defaults). Signed errors are
-positive outside the truth (the probability map's 127.5 surface); "ss" is
-the class's share of the summed squared error. Needs what compare_peers.py
-needs; reads ../shared/data/bio.
+Each argument is one meshsmooth run ("" = defaults). `--mesh` takes
+another mesh of the same map, in its world coordinates (`gm_mc` needs one:
+`eval/real_placements.py --only gm_2mm --placements 1 --dump DIR` writes
+`gm_2mm_0_mc.obj`). Signed errors are positive outside the truth (the
+probability map's 127.5 surface); "ss" is the class's share of the summed
+squared error. Needs what compare_peers.py needs; reads ../shared/data/bio.
 """
 
 from __future__ import annotations
@@ -32,14 +40,54 @@ DATA = ROOT.parent / "shared" / "data" / "bio"
 MESHES = {
     "wm": ("mni152_wm_crop48_1mm_voxelquads.obj", "mni152_wm_crop48_1mm_prob.nii.gz", 3),
     "gm": ("mni152_gm_mask_2mm_voxelquads.obj", "mni152_gm_2mm_prob.nii.gz", None),
+    "wm_mc": ("mni152_wm_crop48_1mm_marchingcubes.obj", "mni152_wm_crop48_1mm_prob.nii.gz", 3),
+    "gm_mc": (None, "mni152_gm_2mm_prob.nii.gz", None),
 }
 
 
+def run_classes(mask, vox):
+    """Per marching-cubes vertex (`vox`: its voxel coordinates, one of them
+    half way between two voxel centres), whether the run of voxels along its
+    edge makes it a slit, a sheet, both or neither. `mask` is padded by one
+    voxel, so index `i` is voxel `i - 1`."""
+    n = len(vox)
+    axis = np.argmax(np.abs(vox - np.rint(vox)), axis=1)
+    lo = np.rint(vox).astype(int) + 1
+    lo[np.arange(n), axis] = np.floor(vox[np.arange(n), axis]).astype(int) + 1
+    hi = lo.copy()
+    hi[np.arange(n), axis] += 1
+    step = np.zeros_like(lo)
+    step[np.arange(n), axis] = 1
+    limit = np.asarray(mask.shape) - 1
+
+    def at(c):
+        return mask[tuple(np.clip(c, 0, limit).T)]
+
+    lo_in = at(lo)
+    inside = np.where(lo_in[:, None], lo, hi)
+    outward = np.where(lo_in[:, None], step, -step)
+    slit = at(inside + 2 * outward)
+    sheet = ~at(inside - outward)
+    return [
+        ("slit", slit & ~sheet),
+        ("sheet", sheet & ~slit),
+        ("both", slit & sheet),
+        ("neither", ~slit & ~sheet),
+    ]
+
+
 def main():
-    name, runs = sys.argv[1], sys.argv[2:] or [""]
+    name, runs = sys.argv[1], sys.argv[2:]
     mesh_file, prob_file, margin = MESHES[name]
+    if runs[:1] == ["--mesh"]:
+        mesh_path, runs = runs[1], runs[2:]
+    elif mesh_file is None:
+        sys.exit(f"{name} needs --mesh FILE.obj (see the module docs)")
+    else:
+        mesh_path = str(DATA / mesh_file)
+    runs = runs or [""]
     binary = os.environ.get("MESHSMOOTH", str(ROOT / "target" / "release" / "meshsmooth"))
-    verts, faces = mm.read_obj(str(DATA / mesh_file))
+    verts, faces = mm.read_obj(mesh_path)
     img = nib.load(str(DATA / prob_file))
     prob = np.pad(np.asarray(img.dataobj, dtype=np.float64), 1)
     inv = np.linalg.inv(img.affine)
@@ -76,15 +124,22 @@ def main():
     with tempfile.TemporaryDirectory() as d:
         for i, args in enumerate(runs):
             out = os.path.join(d, f"out{i}.obj")
-            subprocess.run([binary, "smooth", str(DATA / mesh_file), "-o", out, "-q", *args.split()], check=True)
+            subprocess.run([binary, "smooth", mesh_path, "-o", out, "-q", *args.split()], check=True)
             outputs[f"meshsmooth [{args}]"] = mm.read_obj(out)[0]
     p = verts.copy()
     for _ in range(2):
         p = (adj @ p) / degree[:, None]
     outputs["umbrella, 2 full steps"] = p
 
-    classes = [(f"{k} inside", ~non_manifold & (inside_count == k)) for k in range(1, 8)]
-    classes.append(("non-manifold", non_manifold))
+    if name.endswith("_mc"):
+        import compare_peers as cp
+
+        setting = "PyMeshLab cotangent Laplacian 1 steps"
+        outputs[setting] = cp.sweep()[setting](verts, faces)
+        classes = run_classes(mask, index(verts))
+    else:
+        classes = [(f"{k} inside", ~non_manifold & (inside_count == k)) for k in range(1, 8)]
+        classes.append(("non-manifold", non_manifold))
     for label, p in outputs.items():
         s = signed(p)
         total = (s[sel] ** 2).sum()
