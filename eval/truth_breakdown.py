@@ -45,6 +45,30 @@ MESHES = {
 }
 
 
+def corner_classes(mask, vox, faces):
+    """Per voxel-quad vertex (`vox`: its voxel coordinates, a lattice
+    corner), how many of the 8 voxels around it are inside, and whether it
+    is non-manifold (an edge of its not shared by exactly two faces).
+    `mask` is padded by one voxel, so index `i` is voxel `i - 1`."""
+    corner = np.rint(vox + 0.5).astype(int) + 1
+    inside_count = sum(
+        mask[corner[:, 0] - dx, corner[:, 1] - dy, corner[:, 2] - dz]
+        for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)
+    )
+    counts = {}
+    for face in faces:
+        for a, b in zip(face, face[1:] + face[:1]):
+            key = (min(a, b), max(a, b))
+            counts[key] = counts.get(key, 0) + 1
+    non_manifold = np.zeros(len(vox), dtype=bool)
+    for (a, b), c in counts.items():
+        if c != 2:
+            non_manifold[a] = non_manifold[b] = True
+    classes = [(f"{k} inside", ~non_manifold & (inside_count == k)) for k in range(1, 8)]
+    classes.append(("non-manifold", non_manifold))
+    return classes
+
+
 def run_classes(mask, vox):
     """Per marching-cubes vertex (`vox`: its voxel coordinates, one of them
     half way between two voxel centres), whether the run of voxels along its
@@ -102,20 +126,6 @@ def main():
         return np.where(inside, -d, d)
 
     mask = prob > 127.5
-    corner = np.rint(index(verts) + 0.5).astype(int) + 1
-    inside_count = sum(
-        mask[corner[:, 0] - dx, corner[:, 1] - dy, corner[:, 2] - dz]
-        for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)
-    )
-    counts = {}
-    for face in faces:
-        for a, b in zip(face, face[1:] + face[:1]):
-            key = (min(a, b), max(a, b))
-            counts[key] = counts.get(key, 0) + 1
-    non_manifold = np.zeros(len(verts), dtype=bool)
-    for (a, b), c in counts.items():
-        if c != 2:
-            non_manifold[a] = non_manifold[b] = True
     adj = mm.adjacency(len(verts), mm.edges_of(faces))
     degree = np.maximum(np.asarray(adj.sum(1)).ravel(), 1)
     sel = np.ones(len(verts), dtype=bool) if margin is None else truth.inside_crop(verts, margin)
@@ -138,8 +148,7 @@ def main():
         outputs[setting] = cp.sweep()[setting](verts, faces)
         classes = run_classes(mask, index(verts))
     else:
-        classes = [(f"{k} inside", ~non_manifold & (inside_count == k)) for k in range(1, 8)]
-        classes.append(("non-manifold", non_manifold))
+        classes = corner_classes(mask, index(verts), faces)
     for label, p in outputs.items():
         s = signed(p)
         total = (s[sel] ** 2).sum()

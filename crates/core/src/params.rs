@@ -253,9 +253,9 @@ pub struct Params {
     /// passes' fits would reshape its folds; independent noise of standard
     /// deviation `sigma` gives an estimate of about `0.85 sigma`, so the
     /// default 4 lets a vertex move three to four standard deviations of
-    /// it. The distance across is measured
-    /// from the input's own quadric through the vertex, so moves along a
-    /// curved surface are free (within `max_displacement`). After the
+    /// it. The distance across is measured from the input's own quadric
+    /// through the vertex, so moves along a curved surface are free (within
+    /// `max_displacement`). After the
     /// passes, the move across that a vertex shares with its 1-ring (the
     /// fits' bias, which flattens folds; noise averages out over a ring) is
     /// taken back. Needs `max_displacement`; `null` holds such vertices in

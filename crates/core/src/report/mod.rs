@@ -366,8 +366,9 @@ pub struct WangYuSummary {
     pub fidelity_held_back: Option<u64>,
     /// On a mesh cut from no grid: the input's noise estimate, the median
     /// height of a vertex above the quadric with cubic terms fitted to its
-    /// 2-ring, in its mean edge lengths; each vertex was held within `noise_bound` times
-    /// it (times its mean edge) across its input surface. `null` on a voxel
+    /// 2-ring, in its mean edge lengths; each vertex was held within
+    /// `noise_bound` times it (times its mean edge) across its input
+    /// surface. `null` on a voxel
     /// or marching-cubes mesh, without `noise_bound` or `max_displacement`,
     /// or when fewer than 32 vertices have a fit. Since schema 2.5.
     #[serde(default)]
