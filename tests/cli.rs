@@ -609,3 +609,68 @@ fn vertex_results_go_into_ply_and_glb_outputs() {
         stderr(&out)
     );
 }
+
+#[test]
+fn faces_wound_against_their_neighbours_smooth_as_wound_outward() {
+    let dir = scratch("faces_wound_against_their_neighbours");
+    let (input, mesh, _) = sphere_file(&dir);
+    let (output, report) = (dir.join("out.obj"), dir.join("report.json"));
+    let outward = smooth_with_report(&input, &output, &report, &["-q"]);
+    assert_eq!(outward["mesh"]["reoriented_faces"], 0);
+    let smoothed = read_mesh(&std::fs::read(&output).unwrap());
+
+    // Every fifth face turned, as a writer that loses track of its winding
+    // (or an STL file) leaves them.
+    let turned: Vec<Vec<u32>> = faces(&mesh)
+        .into_iter()
+        .enumerate()
+        .map(|(f, mut c)| {
+            if f % 5 == 0 {
+                c.reverse();
+            }
+            c
+        })
+        .collect();
+    let wound = Mesh::from_polygons(mesh.positions().to_vec(), &turned).unwrap();
+    let mut bytes = Vec::new();
+    write_obj_plain(&wound, wound.positions(), &mut bytes).unwrap();
+    let input = dir.join("wound.obj");
+    std::fs::write(&input, &bytes).unwrap();
+    let (output, report) = (dir.join("wound_out.obj"), dir.join("wound.json"));
+    let out = meshsmooth(&[
+        "smooth",
+        path_str(&input),
+        "-o",
+        path_str(&output),
+        "--report",
+        path_str(&report),
+    ]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("against their neighbours"),
+        "{}",
+        stderr(&out)
+    );
+    let report = read_report(&report);
+    assert_eq!(
+        report["mesh"]["reoriented_faces"],
+        mesh.num_faces().div_ceil(5)
+    );
+    assert_eq!(report["mesh"]["inside_out"], false);
+    assert_eq!(report["stages"], outward["stages"]);
+    // The same positions; the file's own faces.
+    let out_mesh = read_mesh(&std::fs::read(&output).unwrap());
+    assert_eq!(out_mesh.positions(), smoothed.positions());
+    assert_eq!(faces(&out_mesh), turned);
+
+    let out = meshsmooth(&["report", path_str(&input)]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let table = String::from_utf8(out.stdout).unwrap();
+    assert!(
+        table.contains(&format!(
+            "winding          {} faces against their neighbours",
+            mesh.num_faces().div_ceil(5)
+        )),
+        "{table}"
+    );
+}

@@ -116,6 +116,7 @@ pub fn measured(w: &mut impl Write, m: &MeshStatistics, s: &StageMeasures) -> io
         if m.closed { "closed" } else { "open" },
         m.degenerate_faces
     )?;
+    writeln!(w, "winding          {}", winding(m))?;
     writeln!(w, "mean edge length {}", sig(s.mean_edge_length))?;
     if let Some(c) = s.curvature_variation {
         writeln!(
@@ -159,6 +160,34 @@ fn angles(a: &AngleStats) -> String {
         a.below_30,
         a.above_150
     )
+}
+
+/// How the faces were wound: what the measures (and a smoothing run) turned
+/// before reading them.
+fn winding(m: &MeshStatistics) -> String {
+    let mut parts = Vec::new();
+    let against = if m.inside_out {
+        parts.push("inside out (measured turned)".to_owned());
+        m.faces.saturating_sub(m.reoriented_faces)
+    } else {
+        m.reoriented_faces
+    };
+    if against > 0 {
+        parts.push(format!(
+            "{against} faces against their neighbours (measured turned)"
+        ));
+    }
+    if m.orientation_seams > 0 {
+        parts.push(format!(
+            "{} seams no turn removes (not orientable)",
+            m.orientation_seams
+        ));
+    }
+    if parts.is_empty() {
+        "consistent, outward".to_owned()
+    } else {
+        parts.join("; ")
+    }
 }
 
 #[cfg(test)]

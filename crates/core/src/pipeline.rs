@@ -9,7 +9,8 @@ use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::FitModel;
 use crate::mesh::lattice::{is_marching_cubes_lattice, is_voxel_lattice};
 use crate::mesh::{
-    Mesh, PairedFaces, Topology, VertexKind, mean_edge_length, paired_voxel_faces, signed_volume,
+    Mesh, Orientation, PairedFaces, Topology, VertexKind, mean_edge_length, orientation,
+    paired_voxel_faces, signed_volume,
 };
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
 use crate::quality::{SLIVER_FRACTION, has_sliver_angle, improve, is_defective};
@@ -759,8 +760,9 @@ pub fn run(
     let _enter = span.enter();
     let mut timings = Timings::default();
     progress.update(Stage::Analyse, 0.0);
-    let (input_topo, input_masks, mut report) =
+    let (oriented, input_topo, input_masks, mut report) =
         timings.time(Stage::Analyse, || analyse(mesh, params))?;
+    let mesh = oriented.as_ref().unwrap_or(mesh);
     // A voxel mesh written as triangles is smoothed as its voxel faces; the
     // measures stay on the file's triangles.
     let input_mesh = mesh;
@@ -934,15 +936,19 @@ impl PerVertex {
     }
 }
 
-/// The analyse stage: topology, the vertices each step may move, and a
-/// report with the mesh statistics and the input's measures.
+/// The analyse stage: topology, the faces' winding made consistent
+/// ([`oriented`]: the mesh with turned faces, when any turn), the vertices
+/// each step may move, and a report with the mesh statistics and the
+/// input's measures (of the turned faces).
 fn analyse(
     mesh: &Mesh,
     params: &Params,
-) -> Result<(Topology, VertexMasks, QualityReport), ShapeError> {
-    let input = mesh.positions();
+) -> Result<(Option<Mesh>, Topology, VertexMasks, QualityReport), ShapeError> {
     let topo = Topology::build(mesh);
     check_shape(mesh, &topo)?;
+    let (oriented, orientation) = oriented(mesh, &topo);
+    let mesh = oriented.as_ref().unwrap_or(mesh);
+    let input = mesh.positions();
     // Wang-Yu's first initial pass fits the input's 2-rings anyway: the
     // input's curvature variation comes from those fits.
     let input_curvature =
@@ -969,7 +975,52 @@ fn analyse(
     );
     let mut report = QualityReport::new(statistics, Reproducibility::new(params));
     report.stages.input = Some(input_measures);
-    Ok((topo, masks, report))
+    report_orientation(&orientation, &mut report);
+    Ok((oriented, topo, masks, report))
+}
+
+/// `mesh` with its faces wound consistently and outward ([`orientation`]),
+/// or `None` when it already is, and the turns. The topology does not
+/// depend on the winding: `topo` is the turned mesh's too.
+fn oriented(mesh: &Mesh, topo: &Topology) -> (Option<Mesh>, Orientation) {
+    let _s = tracing::info_span!("orientation").entered();
+    let orientation = orientation(mesh, topo);
+    (orientation.apply(mesh), orientation)
+}
+
+/// The turns in the report's mesh statistics, and a warning for each kind.
+fn report_orientation(orientation: &Orientation, report: &mut QualityReport) {
+    report.mesh.reoriented_faces = orientation.turned_faces as u64;
+    report.mesh.inside_out = orientation.inside_out;
+    report.mesh.orientation_seams = orientation.seams as u64;
+    if orientation.inside_out {
+        report.warnings.push(
+            "the mesh is wound inside out (its faces enclose a negative volume): it was smoothed \
+             and measured with every face turned; the output keeps the file's winding"
+                .to_string(),
+        );
+    }
+    let against = if orientation.inside_out {
+        (report.mesh.faces as usize).saturating_sub(orientation.turned_faces)
+    } else {
+        orientation.turned_faces
+    };
+    if against > 0 {
+        report.warnings.push(format!(
+            "the file winds {against} of its {} faces against their neighbours (an edge shared \
+             by two faces should be passed in opposite directions): they were smoothed and \
+             measured turned; the output keeps the file's winding",
+            report.mesh.faces
+        ));
+    }
+    if orientation.seams > 0 {
+        report.warnings.push(format!(
+            "faces that no turn can make agree meet at {} edges (the surface cannot be \
+             oriented, like a Moebius strip): the fits' normals and the inverted-face counts \
+             there are unreliable",
+            orientation.seams
+        ));
+    }
 }
 
 /// Puts the Wang-Yu stages' results in `report` (the input's curvature
@@ -1207,6 +1258,8 @@ fn final_warnings(params: &Params, report: &mut QualityReport, volume_warned: bo
 pub fn measure(mesh: &Mesh, params: &Params) -> QualityReport {
     let topo = Topology::build(mesh);
     let shape = check_shape(mesh, &topo);
+    let (oriented, orientation) = oriented(mesh, &topo);
+    let mesh = oriented.as_ref().unwrap_or(mesh);
     let curvature = shape
         .is_ok()
         .then(|| stage_curvature(mesh, &topo, mesh.positions(), params));
@@ -1219,6 +1272,7 @@ pub fn measure(mesh: &Mesh, params: &Params) -> QualityReport {
         curvature.as_deref(),
         params.quality.short_edge_fraction,
     ));
+    report_orientation(&orientation, &mut report);
     if let Err(e) = shape {
         report.warnings.push(format!(
             "no curvature measured and no smoothing possible: {e}"
@@ -1271,6 +1325,47 @@ mod tests {
             &AtomicBool::new(false),
         )
         .expect("run")
+    }
+
+    /// `mesh` with the corners of the faces `turn` picks in reverse order.
+    fn turned(mesh: &Mesh, turn: impl Fn(usize) -> bool) -> Mesh {
+        let faces: Vec<Vec<u32>> = mesh
+            .faces()
+            .enumerate()
+            .map(|(f, c)| {
+                let mut c = c.to_vec();
+                if turn(f) {
+                    c.reverse();
+                }
+                c
+            })
+            .collect();
+        Mesh::from_polygons(mesh.positions().to_vec(), &faces).unwrap()
+    }
+
+    #[test]
+    fn a_mesh_wound_inside_out_or_against_itself_smooths_as_wound_outward() {
+        for (_, mesh) in [shapes::voxel_sphere(5.0), shapes::mc_sphere(5.0)] {
+            let outward = run_defaults(&mesh);
+            assert_eq!(outward.report.mesh.reoriented_faces, 0);
+            assert!(outward.report.warnings.is_empty());
+            // Every face, a seventh of them, all but that seventh.
+            for (turn, inside_out) in [
+                (&(|_| true) as &dyn Fn(usize) -> bool, true),
+                (&|f| f % 7 == 3, false),
+                (&|f| f % 7 != 3, true),
+            ] {
+                let out = run_defaults(&turned(&mesh, turn));
+                assert_eq!(out.positions, outward.positions);
+                let count = (0..mesh.num_faces()).filter(|&f| turn(f)).count() as u64;
+                assert_eq!(
+                    (out.report.mesh.reoriented_faces, out.report.mesh.inside_out),
+                    (count, inside_out)
+                );
+                assert_eq!(out.report.stages, outward.report.stages);
+                assert!(!out.report.warnings.is_empty());
+            }
+        }
     }
 
     #[test]

@@ -5,12 +5,14 @@
 //! vertices, so vertex and face order are those of the input.
 
 pub(crate) mod lattice;
+mod orientation;
 mod paired;
 mod ring;
 mod topology;
 #[cfg(test)]
-pub(crate) use topology::tests::grid as test_grid;
+pub(crate) use topology::tests::{grid as test_grid, unit_cube as test_unit_cube};
 
+pub use orientation::{Orientation, orientation};
 pub use paired::{PairedFaces, paired_voxel_faces};
 pub use ring::RingWalker;
 pub(crate) use topology::has_repeated_corner;

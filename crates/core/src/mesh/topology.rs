@@ -519,6 +519,22 @@ pub(crate) mod tests {
     use glam::DVec3;
 
     /// An `n` x `n` grid of unit quads in the plane z = 0, an open surface.
+    /// A closed unit cube of six quads, wound outward.
+    pub(crate) fn unit_cube() -> Mesh {
+        let p = (0..8)
+            .map(|i| DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64))
+            .collect();
+        let faces = [
+            [0u32, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        Mesh::from_polygons(p, &faces).unwrap()
+    }
+
     pub(crate) fn grid(n: u32) -> Mesh {
         let mut p = Vec::new();
         for j in 0..=n {

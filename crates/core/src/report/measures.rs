@@ -585,22 +585,8 @@ fn edge_counts(topo: &Topology) -> EdgeCounts {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mesh::test_unit_cube as unit_cube;
     use crate::quality::fixtures::{at, grid, radially_projected_sphere};
-
-    fn unit_cube() -> Mesh {
-        let p = (0..8)
-            .map(|i| DVec3::new((i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64))
-            .collect();
-        let faces = [
-            [0u32, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ];
-        Mesh::from_polygons(p, &faces).unwrap()
-    }
 
     #[test]
     fn cube_angles_volume_and_counts() {

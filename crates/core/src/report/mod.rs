@@ -22,7 +22,7 @@ use sha2::{Digest, Sha256};
 /// Version of the report's JSON schema: the major number changes when a
 /// field is removed or changes meaning, the minor number when fields are
 /// added.
-pub const SCHEMA_VERSION: &str = "2.5";
+pub const SCHEMA_VERSION: &str = "2.6";
 
 /// Width of one angle-histogram bin, in degrees.
 pub const ANGLE_BIN_DEG: f64 = 5.0;
@@ -262,6 +262,22 @@ pub struct MeshStatistics {
     /// Vertices in the file before welding; absent when the file was not
     /// welded (then `vertices` is the file's count). Since schema 1.1.
     pub file_vertices: Option<u64>,
+    /// Faces whose corners the run took in reverse order, so that faces
+    /// sharing an edge wind it opposite ways and a closed mesh encloses a
+    /// positive volume: faces wound against their neighbours, or every
+    /// face of a mesh wound inside out. Every stage and measure reads the
+    /// turned faces; the output keeps the file's faces. Since schema 2.6.
+    #[serde(default)]
+    pub reoriented_faces: u64,
+    /// True when the closed mesh, once its faces agreed, was wound inside
+    /// out and every face was turned. Since schema 2.6.
+    #[serde(default)]
+    pub inside_out: bool,
+    /// Edges between two faces that still wind it the same way after the
+    /// turns: a surface that cannot be oriented (a Moebius strip). Since
+    /// schema 2.6.
+    #[serde(default)]
+    pub orientation_seams: u64,
 }
 
 /// Vertices per label of the paper's Table 2.
