@@ -19,6 +19,16 @@ metrics of `compare_peers.py`:
   standard deviation of a tenth of its mean edge (seeded): an isosurface
   of a noisy image, whose noise a smoother should take out while it keeps
   the surface.
+- `surfnets`: VTK's surface nets of the mask without their smoothing
+  (`pyvista.ImageData.contour_labels(smoothing=False)`, quads): the voxel
+  faces, but split into separate sheets where voxels touch along an edge,
+  so the file has open edges with a twin vertex at the same place (a
+  crack) there.
+- `surfnets_smooth`: the same with VTK's own constrained smoothing (its
+  defaults, triangles), as 3D Slicer's surface-nets conversion makes it;
+  its cracks pull apart.
+- `flyingedges`: VTK's flying edges of the mask at 0.5 (triangles; another
+  marching-cubes table than scikit-image's).
 
     python3 eval/pipeline_variants.py [--data DIR] [--binary PATH] [--only wm_softmc,...]
 
@@ -50,7 +60,7 @@ MAPS = {
 
 
 def variants(data, affine):
-    """The three meshes of one map (`data`, its `affine`), in world
+    """The meshes of one map (`data`, its `affine`) listed above, in world
     coordinates: name -> (vertices, faces)."""
     import pymeshlab
     from scipy.ndimage import gaussian_filter
@@ -72,7 +82,31 @@ def variants(data, affine):
     ms.meshing_decimation_quadric_edge_collapse(targetperc=0.3, preservetopology=True)
     m = ms.current_mesh()
     out["decimc"] = (np.asarray(m.vertex_matrix()), np.asarray(m.face_matrix()))
+    out.update(vtk_variants(mask, world))
     return {k: (v, [list(t) for t in f]) for k, (v, f) in out.items()}
+
+
+def vtk_variants(mask, world):
+    """VTK's meshes of `mask` (index space, mapped by `world`): surface nets
+    without and with their smoothing, flying edges at 0.5."""
+    import pyvista as pv
+
+    image = pv.ImageData(dimensions=mask.shape)
+    image.point_data["mask"] = mask.astype(np.uint8).ravel(order="F")
+
+    def mesh(poly):
+        cells, faces, i = np.asarray(poly.faces), [], 0
+        while i < len(cells):
+            n = cells[i]
+            faces.append(cells[i + 1 : i + 1 + n])
+            i += n + 1
+        return world(np.asarray(poly.points, dtype=np.float64)), faces
+
+    return {
+        "surfnets": mesh(image.contour_labels(smoothing=False, output_mesh_type="quads")),
+        "surfnets_smooth": mesh(image.contour_labels(output_mesh_type="triangles")),
+        "flyingedges": mesh(image.contour([0.5], scalars="mask", method="flying_edges")),
+    }
 
 
 def with_normal_noise(verts, faces, sigma, seed=1):
@@ -107,7 +141,8 @@ def main():
     }
     print("| tool | flipped | twisted | angles<20 | min angle | max move | curv. var. | volume | truth RMS | time |")
     for key, (prob, margin) in MAPS.items():
-        wanted = [n for n in ("softmc", "softnoisy", "blurmc", "decimc") if not args.only or f"{key}_{n}" in args.only.split(",")]
+        names = ("softmc", "softnoisy", "blurmc", "decimc", "surfnets", "surfnets_smooth", "flyingedges")
+        wanted = [n for n in names if not args.only or f"{key}_{n}" in args.only.split(",")]
         if not wanted:
             continue
         img = nib.load(str(Path(args.data) / prob))

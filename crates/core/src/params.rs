@@ -283,7 +283,10 @@ pub struct Params {
     /// welded mesh). `null` takes the format's default: on for glTF/GLB and
     /// STL, and for an OBJ or PLY that repeats most of its positions
     /// (welding leaves at most half its vertices: a face soup, a
-    /// flat-shaded export); off for other OBJ and PLY. Default `null`.
+    /// flat-shaded export) or whose repeated positions join open edges (a
+    /// crack: separate sheets meeting at the same rim, as VTK's surface
+    /// nets leave where voxels touch along an edge; a PLY cut along its
+    /// texture seams); off for other OBJ and PLY. Default `null`.
     pub weld: Option<bool>,
     /// Welding tolerance as a fraction of the bounding-box diagonal; 0 joins
     /// only equal positions. Default 0; range 0..=0.01.

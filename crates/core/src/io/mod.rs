@@ -13,7 +13,7 @@ pub mod stl;
 pub mod weld;
 
 use crate::error::ErrorCode;
-use crate::mesh::Mesh;
+use crate::mesh::{Mesh, Topology};
 use glam::DVec3;
 use thiserror::Error;
 
@@ -438,10 +438,17 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
         },
         // OBJ and PLY share vertices by index: a file that still repeats
         // most of its positions was written face by face (a soup, a
-        // flat-shaded export), and its faces smooth as one surface only
-        // once welded.
+        // flat-shaded export), and one whose repeated positions join open
+        // edges has cracks (rims at the same place: a mesher that splits
+        // voxels touching along an edge into separate sheets, a PLY cut
+        // along its texture seams). Either smooths as one surface only
+        // once welded; unwelded, the rims' vertices stay where they were
+        // (the boundary rule) or pull apart and open holes.
         None => match weld(&mesh)? {
-            Some(w) if 2 * w.mesh.num_vertices() <= mesh.num_vertices() => {
+            Some(w)
+                if 2 * w.mesh.num_vertices() <= mesh.num_vertices()
+                    || closes_open_edges(&mesh, &w.mesh) =>
+            {
                 (true, w.mesh, Some(w.vertex_map))
             }
             _ => (false, mesh, None),
@@ -454,6 +461,16 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
         vertex_map,
         source,
     })
+}
+
+/// True when `welded` (the weld of `mesh`) has fewer open edges (edges of
+/// one face) than `mesh`: welding joins rims that lie at the same place.
+fn closes_open_edges(mesh: &Mesh, welded: &Mesh) -> bool {
+    let (before, after) = rayon::join(
+        || Topology::build(mesh).num_boundary_edges(),
+        || Topology::build(welded).num_boundary_edges(),
+    );
+    after < before
 }
 
 /// Writes `doc` with `positions` (one per vertex of `doc.mesh`) as `format`.
@@ -679,12 +696,18 @@ mod tests {
         let doc = read(soup, Format::Obj, &ReadLimits::default()).unwrap();
         assert!(doc.welded);
         assert_eq!(doc.mesh.num_vertices(), 4);
-        // A few repeated positions (a vertex split on purpose): left as the
-        // file has them.
-        let shared = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 0\nf 1 2 3\nf 5 3 4\n";
+        // A few repeated positions that join no open edge (a vertex split
+        // on purpose, here where two triangles touch at a corner): left as
+        // the file has them.
+        let shared = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 0 0\nv -1 0 0\nv 0 -1 0\nf 1 2 3\nf 4 5 6\n";
         let doc = read(shared, Format::Obj, &ReadLimits::default()).unwrap();
         assert!(!doc.welded);
-        assert_eq!(doc.mesh.num_vertices(), 5);
+        assert_eq!(doc.mesh.num_vertices(), 6);
+        // A few that do (a crack: the square's diagonal split in two rims).
+        let cracked = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 0\nf 1 2 3\nf 5 3 4\n";
+        let doc = read(cracked, Format::Obj, &ReadLimits::default()).unwrap();
+        assert!(doc.welded);
+        assert_eq!(doc.mesh.num_vertices(), 4);
         // Asked not to weld, a soup stays one.
         let options = ReadOptions {
             weld: Some(false),
