@@ -175,6 +175,11 @@ fn limits() {
             format!("one face of {face_corners} corners"),
             shapes::big_face(face_corners),
         ),
+        // Ten times the corners: refused in about ten times the time.
+        (
+            format!("one face of {} corners", 10 * face_corners),
+            shapes::big_face(10 * face_corners),
+        ),
         (
             format!("300 double cones, tips of {} edges", MAX_VALENCE - 2),
             shapes::double_cones(300, MAX_VALENCE - 2),

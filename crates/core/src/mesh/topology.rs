@@ -302,15 +302,29 @@ impl Topology {
 }
 
 /// True when a face repeats a corner index (a degenerate face; its angles
-/// are undefined). Triangles and quads are compared directly.
+/// are undefined). Triangles and quads are compared directly, small
+/// polygons pair by pair, larger ones sorted (a face of `n` corners costs
+/// `n log n`, never `n^2`: the topology is built before a face too large
+/// to smooth is refused).
 #[inline]
 pub(crate) fn has_repeated_corner(face: &[u32]) -> bool {
     match *face {
         [a, b, c] => a == b || a == c || b == c,
         [a, b, c, d] => a == b || a == c || a == d || b == c || b == d || c == d,
-        _ => face.iter().enumerate().any(|(j, v)| face[..j].contains(v)),
+        _ if face.len() <= SMALL_POLYGON => {
+            face.iter().enumerate().any(|(j, v)| face[..j].contains(v))
+        }
+        _ => {
+            let mut sorted = face.to_vec();
+            sorted.sort_unstable();
+            sorted.windows(2).any(|w| w[0] == w[1])
+        }
     }
 }
+
+/// Corners up to which a polygon's repeated corners are found pair by
+/// pair: cheaper than sorting a copy, and `n^2` stays small.
+const SMALL_POLYGON: usize = 16;
 
 impl Topology {
     /// What [`Topology::build`] derives from the face sides: the unique
@@ -408,11 +422,28 @@ impl Topology {
 /// vertex, in face order.
 fn vertex_face_lists(mesh: &Mesh) -> (Vec<u32>, Vec<u32>) {
     let n = mesh.num_vertices();
+    // A corner repeated in a small face is found by scanning the corners
+    // before it; in a larger one by the last face its vertex was seen in
+    // (faces are visited in order), so no face costs the square of its
+    // size.
+    let mut last_face = Vec::new();
     let mut vf_offsets = vec![0u32; n + 1];
-    for face in mesh.faces() {
-        for (j, &v) in face.iter().enumerate() {
-            if !face[..j].contains(&v) {
-                vf_offsets[v as usize + 1] += 1;
+    for (f, face) in mesh.faces().enumerate() {
+        if face.len() <= SMALL_POLYGON {
+            for (j, &v) in face.iter().enumerate() {
+                if !face[..j].contains(&v) {
+                    vf_offsets[v as usize + 1] += 1;
+                }
+            }
+        } else {
+            if last_face.is_empty() {
+                last_face = vec![u32::MAX; n];
+            }
+            for &v in face {
+                if last_face[v as usize] != f as u32 {
+                    last_face[v as usize] = f as u32;
+                    vf_offsets[v as usize + 1] += 1;
+                }
             }
         }
     }
@@ -421,8 +452,14 @@ fn vertex_face_lists(mesh: &Mesh) -> (Vec<u32>, Vec<u32>) {
     let mut vf = vec![0u32; vf_offsets[n] as usize];
     for (f, face) in mesh.faces().enumerate() {
         for (j, &v) in face.iter().enumerate() {
-            if !face[..j].contains(&v) {
-                let s = &mut fill[v as usize];
+            let s = &mut fill[v as usize];
+            // The vertex's list ends with this face when the corner repeats.
+            let repeated = if face.len() <= SMALL_POLYGON {
+                face[..j].contains(&v)
+            } else {
+                *s > vf_offsets[v as usize] && vf[*s as usize - 1] == f as u32
+            };
+            if !repeated {
                 vf[*s as usize] = f as u32;
                 *s += 1;
             }
@@ -570,6 +607,33 @@ pub(crate) mod tests {
             let (block, n) = t.neighbor_block(v).unwrap();
             assert_eq!(&block[..n], t.neighbors(v), "vertex {v}");
         }
+    }
+
+    #[test]
+    fn a_large_polygon_repeating_a_corner_lists_each_face_once() {
+        // A 40-gon round a circle whose corner 0 comes back halfway, and a
+        // triangle on two of its corners: past `SMALL_POLYGON` corners the
+        // repeats are found without scanning the face.
+        let n = 40u32;
+        let p: Vec<DVec3> = (0..n)
+            .map(|i| {
+                let a = i as f64 * std::f64::consts::TAU / n as f64;
+                DVec3::new(a.cos(), a.sin(), 0.0)
+            })
+            .chain([DVec3::Z])
+            .collect();
+        let mut big: Vec<u32> = (0..n).collect();
+        big[20] = 0;
+        let m = Mesh::from_polygons(p, &[big.clone(), vec![1, 0, n]]).unwrap();
+        let t = Topology::build(&m);
+        assert_eq!(t.num_degenerate_faces(), 1);
+        assert!(has_repeated_corner(&big));
+        big[20] = 20;
+        assert!(!has_repeated_corner(&big));
+        assert_eq!(t.vertex_faces(0), &[0, 1]);
+        assert_eq!(t.vertex_faces(1), &[0, 1]);
+        assert_eq!(t.vertex_faces(20), &[] as &[u32]);
+        assert_eq!(t.vertex_faces(2), &[0]);
     }
 
     #[test]
