@@ -166,12 +166,10 @@ fn angles(a: &AngleStats) -> String {
 /// before reading them.
 fn winding(m: &MeshStatistics) -> String {
     let mut parts = Vec::new();
-    let against = if m.inside_out {
+    if m.inside_out {
         parts.push("inside out (measured turned)".to_owned());
-        m.faces.saturating_sub(m.reoriented_faces)
-    } else {
-        m.reoriented_faces
-    };
+    }
+    let against = m.faces_wound_against();
     if against > 0 {
         parts.push(format!(
             "{against} faces against their neighbours (measured turned)"

@@ -1000,11 +1000,7 @@ fn report_orientation(orientation: &Orientation, report: &mut QualityReport) {
                 .to_string(),
         );
     }
-    let against = if orientation.inside_out {
-        (report.mesh.faces as usize).saturating_sub(orientation.turned_faces)
-    } else {
-        orientation.turned_faces
-    };
+    let against = report.mesh.faces_wound_against();
     if against > 0 {
         report.warnings.push(format!(
             "the file winds {against} of its {} faces against their neighbours (an edge shared \

@@ -44,6 +44,13 @@ pub struct Orientation {
 /// edge twice sets bit 4 and the edge joins nothing).
 type EdgePasses = u8;
 const TWICE: EdgePasses = 1 << 4;
+const BOTH_SEEN: EdgePasses = 0b1100;
+
+/// Whether an edge's two faces pass it the same way (then one of them is
+/// wound against the other); `None` when it joins no two faces.
+fn same_way(p: EdgePasses) -> Option<bool> {
+    (p & TWICE == 0 && p & BOTH_SEEN == BOTH_SEEN).then_some((p & 1) == ((p >> 1) & 1))
+}
 
 /// The turns that wind `mesh` consistently and, when it is closed, outward.
 ///
@@ -69,17 +76,14 @@ pub fn orientation(mesh: &Mesh, topo: &Topology) -> Orientation {
     // edge the same way.
     let across = |f: usize, a: u32, b: u32| -> Option<(usize, bool)> {
         let e = topo.edge(a as usize, b as usize)?;
-        let p = passes[e];
+        let same = same_way(passes[e])?;
         let faces = topo.edge_faces(e);
-        if faces.len() != 2 || p & TWICE != 0 || p & 0b1100 != 0b1100 {
-            return None;
-        }
         let other = if faces[0] as usize == f {
             faces[1]
         } else {
             faces[0]
         };
-        Some((other as usize, (p & 1) == ((p >> 1) & 1)))
+        Some((other as usize, same))
     };
 
     const UNSEEN: u8 = 2;
@@ -173,9 +177,7 @@ fn edge_passes(mesh: &Mesh, topo: &Topology) -> (Vec<EdgePasses>, bool) {
             }
         });
     let passes: Vec<EdgePasses> = passes.into_iter().map(AtomicU8::into_inner).collect();
-    let disagree = passes
-        .par_iter()
-        .any(|&p| p & TWICE == 0 && p & 0b1100 == 0b1100 && (p & 1) == ((p >> 1) & 1));
+    let disagree = passes.par_iter().any(|&p| same_way(p) == Some(true));
     (passes, disagree)
 }
 

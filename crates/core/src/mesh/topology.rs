@@ -451,14 +451,11 @@ fn vertex_face_lists(mesh: &Mesh) -> (Vec<u32>, Vec<u32>) {
     let mut fill = vf_offsets.clone();
     let mut vf = vec![0u32; vf_offsets[n] as usize];
     for (f, face) in mesh.faces().enumerate() {
-        for (j, &v) in face.iter().enumerate() {
+        for &v in face {
             let s = &mut fill[v as usize];
-            // The vertex's list ends with this face when the corner repeats.
-            let repeated = if face.len() <= SMALL_POLYGON {
-                face[..j].contains(&v)
-            } else {
-                *s > vf_offsets[v as usize] && vf[*s as usize - 1] == f as u32
-            };
+            // Faces are filled in order: the vertex's list already ends
+            // with this face when the corner repeats.
+            let repeated = *s > vf_offsets[v as usize] && vf[*s as usize - 1] == f as u32;
             if !repeated {
                 vf[*s as usize] = f as u32;
                 *s += 1;
@@ -555,7 +552,6 @@ pub(crate) mod tests {
     use super::*;
     use glam::DVec3;
 
-    /// An `n` x `n` grid of unit quads in the plane z = 0, an open surface.
     /// A closed unit cube of six quads, wound outward.
     pub(crate) fn unit_cube() -> Mesh {
         let p = (0..8)
@@ -572,6 +568,7 @@ pub(crate) mod tests {
         Mesh::from_polygons(p, &faces).unwrap()
     }
 
+    /// An `n` x `n` grid of unit quads in the plane z = 0, an open surface.
     pub(crate) fn grid(n: u32) -> Mesh {
         let mut p = Vec::new();
         for j in 0..=n {

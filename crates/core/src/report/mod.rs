@@ -280,6 +280,18 @@ pub struct MeshStatistics {
     pub orientation_seams: u64,
 }
 
+impl MeshStatistics {
+    /// Faces the file winds against their neighbours: `reoriented_faces`,
+    /// less the whole mesh's turn when it was inside out.
+    pub fn faces_wound_against(&self) -> u64 {
+        if self.inside_out {
+            self.faces.saturating_sub(self.reoriented_faces)
+        } else {
+            self.reoriented_faces
+        }
+    }
+}
+
 /// Vertices per label of the paper's Table 2.
 #[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
