@@ -674,3 +674,61 @@ fn faces_wound_against_their_neighbours_smooth_as_wound_outward() {
         "{table}"
     );
 }
+
+#[test]
+fn two_labels_in_one_stl_are_told_apart_and_reported() {
+    // A block of 6 x 4 x 4 voxels in two labels, split at x = 3, written as
+    // one STL: each label's surface with its own triangles.
+    let dir = scratch("two_labels_in_one_stl");
+    let label = |left: bool| {
+        let mask =
+            shapes::VoxelMask::from_fn(glam::IVec3::ZERO, [6, 4, 4], |i, _, _| (i < 3) == left);
+        shapes::voxel_boundary_mesh(&mask)
+    };
+    let (a, b) = (label(true), label(false));
+    let mut positions = a.positions().to_vec();
+    positions.extend_from_slice(b.positions());
+    let mut all = faces(&a);
+    let base = a.num_vertices() as u32;
+    all.extend(
+        faces(&b)
+            .into_iter()
+            .map(|f| f.iter().map(|&v| v + base).collect()),
+    );
+    let both = Mesh::from_polygons(positions, &all).unwrap();
+    let mut bytes = Vec::new();
+    io::stl::write_stl_plain(&both, both.positions(), false, &mut bytes).unwrap();
+    let input = dir.join("labels.stl");
+    std::fs::write(&input, &bytes).unwrap();
+
+    let out = meshsmooth(&["report", path_str(&input)]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let table = String::from_utf8(out.stdout).unwrap();
+    // The wall is 4 x 4 voxel faces, two triangles each.
+    assert!(
+        table.contains("bodies           2 touching face to face (32 shared faces)"),
+        "{table}"
+    );
+    assert!(
+        table.contains(&format!(
+            "vertices         {} ",
+            a.num_vertices() + b.num_vertices()
+        )),
+        "{table}"
+    );
+
+    let (output, report) = (dir.join("out.stl"), dir.join("report.json"));
+    let report = smooth_with_report(&input, &output, &report, &[]);
+    assert_eq!(report["mesh"]["touching_bodies"], 2);
+    assert_eq!(report["mesh"]["shared_faces"], 32);
+    assert!(report["walls_parted"]["max"].as_f64().is_some());
+    assert!(
+        report["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("touch face to face")),
+        "{}",
+        report["warnings"]
+    );
+}

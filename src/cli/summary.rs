@@ -117,6 +117,13 @@ pub fn measured(w: &mut impl Write, m: &MeshStatistics, s: &StageMeasures) -> io
         m.degenerate_faces
     )?;
     writeln!(w, "winding          {}", winding(m))?;
+    if m.touching_bodies > 0 {
+        writeln!(
+            w,
+            "bodies           {} touching face to face ({} shared faces), welded apart",
+            m.touching_bodies, m.shared_faces
+        )?;
+    }
     writeln!(w, "mean edge length {}", sig(s.mean_edge_length))?;
     if let Some(c) = s.curvature_variation {
         writeln!(

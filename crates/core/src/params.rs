@@ -286,7 +286,10 @@ pub struct Params {
     /// flat-shaded export) or whose repeated positions join open edges (a
     /// crack: separate sheets meeting at the same rim, as VTK's surface
     /// nets leave where voxels touch along an edge; a PLY cut along its
-    /// texture seams); off for other OBJ and PLY. Default `null`.
+    /// texture seams); off for other OBJ and PLY. Bodies whose surfaces
+    /// touch face to face (segments of a segmentation written into one
+    /// file, each with its own vertices) are welded each on its own and
+    /// smoothed apart (report `mesh.touching_bodies`). Default `null`.
     pub weld: Option<bool>,
     /// Welding tolerance as a fraction of the bounding-box diagonal; 0 joins
     /// only equal positions. Default 0; range 0..=0.01.

@@ -245,6 +245,9 @@ struct Run<'a> {
     /// The parts whose volumes are restored, when the volume is to be
     /// preserved and the mesh is closed ([`VolumeParts`]).
     volume_parts: Option<&'a VolumeParts>,
+    /// Each vertex's body, when the mesh holds bodies that touch face to
+    /// face ([`run_bodies`]).
+    bodies: Option<&'a [u32]>,
     progress: &'a dyn Progress,
     cancel: &'a AtomicBool,
 }
@@ -443,7 +446,14 @@ fn initial_stage(run: &Run, positions: &mut [DVec3]) -> Result<(FitStats, f64), 
         // its dual voxel (`FAIRING_ROOM`).
         let placed = run.bound.map_or_else(Vec::new, |bound| {
             let room = bound.scaled(FAIRING_ROOM);
-            place_pinches(run.mesh, run.topo, positions, run.relaxable, &room)
+            place_pinches(
+                run.mesh,
+                run.topo,
+                positions,
+                run.relaxable,
+                &room,
+                run.bodies,
+            )
         });
         tracing::debug!(
             placed = placed.iter().filter(|&&p| p).count(),
@@ -754,7 +764,24 @@ pub fn run(
     progress: &dyn Progress,
     cancel: &AtomicBool,
 ) -> Result<SmoothOutput, SmoothError> {
+    run_bodies(mesh, None, params, progress, cancel)
+}
+
+/// [`run`] on a mesh that holds bodies touching face to face, each welded
+/// on its own ([`crate::io::FileBodies`]; `bodies`: one entry per vertex,
+/// its body, or `None`): each body's solids and cavities get their volume
+/// back on their own ([`VolumeParts::by_body`]) and its pinches read its
+/// own faces only, so a body smooths as it would alone. Entries beyond a
+/// mismatched length are ignored (then as `None`).
+pub fn run_bodies(
+    mesh: &Mesh,
+    bodies: Option<&[u32]>,
+    params: &Params,
+    progress: &dyn Progress,
+    cancel: &AtomicBool,
+) -> Result<SmoothOutput, SmoothError> {
     params.validate()?;
+    let bodies = bodies.filter(|b| b.len() == mesh.num_vertices());
     let start = Instant::now();
     let span = tracing::info_span!("smooth", vertices = mesh.num_vertices(), faces = mesh.num_faces(), method = ?params.method);
     let _enter = span.enter();
@@ -821,10 +848,14 @@ pub fn run(
             // the vertices on a smooth surface; the paper's passes alone
             // (`staircase_steps` 0) may leave a voxel's corners where they
             // were.
-            if lattice && params.staircase_steps > 0 {
+            let parts = if lattice && params.staircase_steps > 0 {
                 VolumeParts::for_voxel_lattice(mesh, topo)
             } else {
                 VolumeParts::new(mesh, topo)
+            };
+            match bodies {
+                Some(b) => parts.by_body(mesh, b),
+                None => parts,
             }
         });
     let away = lattice.then(|| away_from_pinches(topo, &masks.movable));
@@ -844,6 +875,7 @@ pub fn run(
         quality_bound: quality_bound.as_ref(),
         quality_fidelity: &quality_fidelity,
         volume_parts: volume_parts.as_ref(),
+        bodies,
         progress,
         cancel,
     };

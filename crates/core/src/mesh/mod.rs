@@ -4,6 +4,7 @@
 //! trust it afterwards. Connectivity never changes: smoothing only moves
 //! vertices, so vertex and face order are those of the input.
 
+mod bodies;
 pub(crate) mod lattice;
 mod orientation;
 mod paired;
@@ -12,6 +13,7 @@ mod topology;
 #[cfg(test)]
 pub(crate) use topology::tests::{grid as test_grid, unit_cube as test_unit_cube};
 
+pub use bodies::{TouchingBodies, body_ids, touching_bodies};
 pub use orientation::{Orientation, orientation};
 pub use paired::{PairedFaces, paired_voxel_faces};
 pub use ring::RingWalker;

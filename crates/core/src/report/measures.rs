@@ -460,6 +460,34 @@ fn vertex_pass(positions: &[DVec3], input: &[DVec3]) -> Displacement {
     }
 }
 
+/// How far apart `positions` put the two copies of each vertex of the
+/// walls that touching bodies share ([`crate::io::FileBodies`]): `shared`
+/// pairs coincident faces of `mesh`, one from each body, and each corner
+/// of one at the input position of a corner of the other is a pair of
+/// copies; each pair counts once.
+pub fn wall_parting(mesh: &Mesh, shared: &[(u32, u32)], positions: &[DVec3]) -> Displacement {
+    let input = mesh.positions();
+    let mut copies: Vec<(u32, u32)> = shared
+        .iter()
+        .flat_map(|&(f, g)| {
+            let (f, g) = (mesh.face(f as usize), mesh.face(g as usize));
+            f.iter().filter_map(move |&a| {
+                let b = *g
+                    .iter()
+                    .find(|&&b| input[b as usize] == input[a as usize])?;
+                (a != b).then_some((a.min(b), a.max(b)))
+            })
+        })
+        .collect();
+    copies.sort_unstable();
+    copies.dedup();
+    let (a, b): (Vec<DVec3>, Vec<DVec3>) = copies
+        .iter()
+        .map(|&(a, b)| (positions[a as usize], positions[b as usize]))
+        .unzip();
+    vertex_pass(&a, &b)
+}
+
 /// The mean curvature variation of a stage whose per-vertex `(H, K)` is
 /// `curvature`: over the vertices with neighbours, the mean of the largest
 /// `|H_i - H_j|` to a neighbour `j` (what [`measure_stage`] reports, times

@@ -8,7 +8,7 @@
 
 pub mod measures;
 
-pub use measures::{mean_curvature_variation, measure_stage, mesh_statistics};
+pub use measures::{mean_curvature_variation, measure_stage, mesh_statistics, wall_parting};
 
 use crate::params::{Method, Params};
 pub use crate::quality::{
@@ -22,7 +22,7 @@ use sha2::{Digest, Sha256};
 /// Version of the report's JSON schema: the major number changes when a
 /// field is removed or changes meaning, the minor number when fields are
 /// added.
-pub const SCHEMA_VERSION: &str = "2.6";
+pub const SCHEMA_VERSION: &str = "2.7";
 
 /// Width of one angle-histogram bin, in degrees.
 pub const ANGLE_BIN_DEG: f64 = 5.0;
@@ -55,6 +55,11 @@ pub struct QualityReport {
     /// that could not be restored, faces left inverted); empty when there
     /// is nothing to say.
     pub warnings: Vec<String>,
+    /// Where bodies touch face to face (`mesh.touching_bodies`): how far
+    /// apart the output puts the two copies of each vertex of their shared
+    /// walls, in model units; absent otherwise. Since schema 2.7.
+    #[serde(default)]
+    pub walls_parted: Option<Displacement>,
 }
 
 impl QualityReport {
@@ -71,6 +76,7 @@ impl QualityReport {
             total_ms: 0.0,
             reproducibility,
             warnings: Vec::new(),
+            walls_parted: None,
         }
     }
 }
@@ -278,6 +284,17 @@ pub struct MeshStatistics {
     /// schema 2.6.
     #[serde(default)]
     pub orientation_seams: u64,
+    /// Bodies told apart because their surfaces touch face to face: closed
+    /// surfaces with their own vertices in one file (the segments of a
+    /// segmentation exported together) that share the faces of a common
+    /// wall. Each is welded, and gets its volume back, on its own; 0 when
+    /// the file has no such bodies. Since schema 2.7.
+    #[serde(default)]
+    pub touching_bodies: u64,
+    /// Faces those bodies share, a wall's face from both sides counted
+    /// once. Since schema 2.7.
+    #[serde(default)]
+    pub shared_faces: u64,
 }
 
 impl MeshStatistics {

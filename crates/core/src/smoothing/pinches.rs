@@ -68,14 +68,18 @@ pub const LINE_KEEP: f64 = 0.44;
 /// give consistently (not a lattice corner, an open rim) stays. Returns
 /// which vertices moved (empty when the mesh has no lattice or no pinch).
 /// Deterministic and parallel per vertex; the faces are sorted once, and
-/// each pinch looks up the 144 squares between its 64 voxels.
+/// each pinch looks up the 144 squares between its 64 voxels. With
+/// `bodies` (one entry per vertex: bodies that touch face to face,
+/// [`crate::io::FileBodies`]), a pinch reads its own body's faces only.
 pub fn place_pinches(
     mesh: &Mesh,
     topo: &Topology,
     positions: &mut [DVec3],
     movable: &[bool],
     bound: &FidelityBound,
+    bodies: Option<&[u32]>,
 ) -> Vec<bool> {
+    let body_of = |v: usize| bodies.and_then(|b| b.get(v)).copied().unwrap_or(0);
     let any =
         (0..topo.num_vertices()).any(|v| movable[v] && topo.kind(v) == VertexKind::NonManifold);
     if !bound.has_lattice() || !any {
@@ -87,7 +91,7 @@ pub fn place_pinches(
     let Some(node) = room.iter().position(|&r| r > 0.0) else {
         return Vec::new();
     };
-    let faces = VoxelFaces::build(mesh, frame, spacing, input[node]);
+    let faces = VoxelFaces::build(mesh, frame, spacing, input[node], &body_of);
     let weights = blur_weights(spacing);
     // Each pinch's level, in spacings along the lattice's axes.
     let levels: Vec<DVec3> = (0..topo.num_vertices())
@@ -102,7 +106,7 @@ pub fn place_pinches(
             // centres, which bound the dual voxel.
             let room = box_size.min(0.5);
             faces
-                .voxels_around(faces.grid(input[v]).round())
+                .voxels_around(faces.grid(input[v]).round(), body_of(v))
                 .map_or(DVec3::ZERO, |block| {
                     half_level(&blurred_corner(&block, &weights), room)
                 })
@@ -143,9 +147,10 @@ struct VoxelFaces {
     frame: [DVec3; 3],
     spacing: DVec3,
     origin: DVec3,
-    /// Per face on the lattice: its square's key ([`square_key`]) and
-    /// whether its normal points along the square's axis; sorted.
-    squares: Vec<(u64, bool)>,
+    /// Per face on the lattice: its square's key ([`square_key`]), its
+    /// body (that of its first corner) and whether its normal points along
+    /// the square's axis; sorted.
+    squares: Vec<(u64, u32, bool)>,
 }
 
 /// Bits per coordinate of a square's key: grid coordinates within half a
@@ -172,9 +177,16 @@ fn block_index(x: usize, y: usize, z: usize) -> usize {
 
 impl VoxelFaces {
     /// The squares of `mesh`'s faces that lie on the lattice of `frame`
-    /// and `spacing` through the node at `origin`; a face off it (not
-    /// axis-aligned) is left out.
-    fn build(mesh: &Mesh, frame: [DVec3; 3], spacing: DVec3, origin: DVec3) -> Self {
+    /// and `spacing` through the node at `origin`, with their bodies
+    /// (`body_of` a vertex); a face off the lattice (not axis-aligned) is
+    /// left out.
+    fn build(
+        mesh: &Mesh,
+        frame: [DVec3; 3],
+        spacing: DVec3,
+        origin: DVec3,
+        body_of: &(impl Fn(usize) -> u32 + Sync),
+    ) -> Self {
         let p = mesh.positions();
         let mut faces = VoxelFaces {
             frame,
@@ -182,7 +194,7 @@ impl VoxelFaces {
             origin,
             squares: Vec::new(),
         };
-        let mut squares: Vec<(u64, bool)> = (0..mesh.num_faces())
+        let mut squares: Vec<(u64, u32, bool)> = (0..mesh.num_faces())
             .into_par_iter()
             .with_min_len(4096)
             .filter_map(|f| {
@@ -198,12 +210,13 @@ impl VoxelFaces {
                     .fold(DVec3::INFINITY, |m, &j| m.min(faces.grid(p[j as usize])))
                     .round();
                 let key = square_key([low.x as i64, low.y as i64, low.z as i64], a)?;
-                Some((key, n[a] > 0.0))
+                let body = face.first().map_or(0, |&v| body_of(v as usize));
+                Some((key, body, n[a] > 0.0))
             })
             .collect();
         // A square split into two triangles counts once.
         squares.par_sort_unstable();
-        squares.dedup_by_key(|s| s.0);
+        squares.dedup_by_key(|s| (s.0, s.1));
         faces.squares = squares;
         faces
     }
@@ -214,12 +227,15 @@ impl VoxelFaces {
         in_frame_of(&self.frame, p - self.origin) / self.spacing
     }
 
-    /// Whether a face covers the square at `c` along `axis`, and if so
-    /// whether its normal points along the axis.
-    fn face_at(&self, c: [i64; 3], axis: usize) -> Option<bool> {
+    /// Whether a face of `body` covers the square at `c` along `axis`,
+    /// and if so whether its normal points along the axis.
+    fn face_at(&self, c: [i64; 3], axis: usize, body: u32) -> Option<bool> {
         let key = square_key(c, axis)?;
-        let i = self.squares.binary_search_by_key(&key, |s| s.0).ok()?;
-        Some(self.squares[i].1)
+        let i = self
+            .squares
+            .binary_search_by_key(&(key, body), |s| (s.0, s.1))
+            .ok()?;
+        Some(self.squares[i].2)
     }
 
     /// The 4 x 4 x 4 voxels around the lattice node at grid coordinates
@@ -228,8 +244,9 @@ impl VoxelFaces {
     /// face's normal points from its inside voxel to its outside one, and
     /// voxels with no face between them are alike. `None` when the faces
     /// contradict each other or leave a voxel undecided. Which side counts
-    /// as inside does not matter to the one-half level.
-    fn voxels_around(&self, node: DVec3) -> Option<[bool; 64]> {
+    /// as inside does not matter to the one-half level. Only the faces of
+    /// `body` count.
+    fn voxels_around(&self, node: DVec3, body: u32) -> Option<[bool; 64]> {
         let base = [node.x as i64 - 2, node.y as i64 - 2, node.z as i64 - 2];
         let mut state: [Option<bool>; 64] = [None; 64];
         // Per voxel and axis: whether a face separates it from the next
@@ -254,7 +271,7 @@ impl VoxelFaces {
                         for (k, c) in square.iter_mut().enumerate() {
                             *c = base[k] + if k == axis { next[k] } else { here[k] } as i64;
                         }
-                        let Some(along) = self.face_at(square, axis) else {
+                        let Some(along) = self.face_at(square, axis, body) else {
                             continue;
                         };
                         walled[low][axis] = true;
@@ -392,6 +409,15 @@ mod tests {
         FidelityBound::new(mesh, topo, 0.5)
     }
 
+    /// Every vertex of `mesh` movable, one body: the placed pinches'
+    /// positions and which moved.
+    fn place_all(mesh: &Mesh, topo: &Topology) -> (Vec<DVec3>, Vec<bool>) {
+        let mut p = mesh.positions().to_vec();
+        let movable = vec![true; p.len()];
+        let placed = place_pinches(mesh, topo, &mut p, &movable, &bound_of(mesh, topo), None);
+        (p, placed)
+    }
+
     /// The mask's 4 x 4 x 4 voxels around the lattice node at `c`, in the
     /// order of [`VoxelFaces::voxels_around`].
     fn mask_block(mask: &VoxelMask, c: DVec3) -> [bool; 64] {
@@ -413,13 +439,14 @@ mod tests {
             [DVec3::X, DVec3::Y, DVec3::Z],
             DVec3::ONE,
             mesh.positions()[0],
+            &|_| 0,
         );
         let pinches = (0..mesh.num_vertices())
             .filter(|&v| topo.kind(v) == VertexKind::NonManifold)
             .count();
         assert!(pinches >= 4, "{pinches} pinches");
         for (v, &p) in mesh.positions().iter().enumerate() {
-            let read = faces.voxels_around(faces.grid(p).round());
+            let read = faces.voxels_around(faces.grid(p).round(), 0);
             assert_eq!(read, Some(mask_block(&mask, p)), "vertex {v}");
         }
     }
@@ -432,9 +459,7 @@ mod tests {
         });
         let mesh = voxel_boundary_mesh(&mask);
         let topo = Topology::build(&mesh);
-        let mut p = mesh.positions().to_vec();
-        let movable = vec![true; p.len()];
-        let placed = place_pinches(&mesh, &topo, &mut p, &movable, &bound_of(&mesh, &topo));
+        let (p, placed) = place_all(&mesh, &topo);
         let ends: Vec<usize> = (0..p.len())
             .filter(|&v| topo.kind(v) == VertexKind::NonManifold)
             .collect();
@@ -515,9 +540,7 @@ mod tests {
             let shape = placed(sphere_pair(6.0, 0.0), seed);
             let mesh = voxel_boundary_mesh(&voxel_mask(&shape));
             let topo = Topology::build(&mesh);
-            let mut p = mesh.positions().to_vec();
-            let movable = vec![true; p.len()];
-            let placed = place_pinches(&mesh, &topo, &mut p, &movable, &bound_of(&mesh, &topo));
+            let (p, placed) = place_all(&mesh, &topo);
             for v in (0..p.len()).filter(|&v| placed[v]) {
                 before += shape.distance(mesh.positions()[v]).powi(2);
                 after += shape.distance(p[v]).powi(2);

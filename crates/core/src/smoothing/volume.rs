@@ -177,6 +177,36 @@ impl VolumeParts {
         }
     }
 
+    /// These parts split by body (`bodies`: one entry per vertex), for a
+    /// file whose bodies touch face to face ([`crate::io::FileBodies`]):
+    /// each body's solids share an offset, and its cavities another, as
+    /// they would alone. Unchanged when `bodies` does not have one entry
+    /// per vertex.
+    pub fn by_body(mut self, mesh: &Mesh, bodies: &[u32]) -> Self {
+        if bodies.len() != self.component.len() {
+            return self;
+        }
+        let count = self.component_volumes.len();
+        let mut body_of = vec![u32::MAX; count];
+        for (&c, &b) in self.component.iter().zip(bodies) {
+            if body_of[c as usize] == u32::MAX {
+                body_of[c as usize] = b;
+            }
+        }
+        let key = |c: usize| (body_of[c], self.component_volumes[c] < 0.0);
+        let mut keys: Vec<(u32, bool)> = (0..count).map(key).collect();
+        keys.sort_unstable();
+        keys.dedup();
+        let part_of: Vec<u32> = self
+            .component
+            .iter()
+            .map(|&c| keys.binary_search(&key(c as usize)).unwrap_or(0) as u32)
+            .collect();
+        self.targets = part_volumes(mesh, mesh.positions(), &part_of, keys.len());
+        self.part_of = part_of;
+        self
+    }
+
     /// The input volume of the whole mesh, in magnitude (at least the
     /// smallest positive number, to divide by).
     fn total_target(&self) -> f64 {

@@ -1,0 +1,214 @@
+//! Bodies that touch face to face: two labels of one segmentation written
+//! into one file, each with its own vertices. Each is welded and smoothed
+//! as it would be alone, whatever the format, and the report says so.
+
+use glam::{DVec3, IVec3};
+use meshsmooth_core::io::{self, Format, ReadLimits, ReadOptions};
+use meshsmooth_core::job::{self, Request};
+use meshsmooth_core::shapes::{VoxelMask, voxel_boundary_mesh};
+use meshsmooth_core::{Mesh, NoProgress, Params};
+use std::sync::atomic::AtomicBool;
+
+const RADIUS: f64 = 7.3;
+
+/// The voxels of a ball of [`RADIUS`] whose centre's x is below (`left`)
+/// or at least (not `left`) `split`: two labels that touch along a disc.
+fn half_ball(left: bool, split: usize) -> VoxelMask {
+    let n = 2 * RADIUS.ceil() as usize + 2;
+    let centre = DVec3::splat(n as f64 / 2.0 + 0.21);
+    VoxelMask::from_fn(IVec3::ZERO, [n, n, n], |i, j, k| {
+        let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
+        c.distance(centre) < RADIUS && (i < split) == left
+    })
+}
+
+/// `meshes` in one mesh, each with its own vertices.
+fn together(meshes: &[&Mesh]) -> Mesh {
+    let mut positions = Vec::new();
+    let mut faces: Vec<Vec<u32>> = Vec::new();
+    for m in meshes {
+        let base = positions.len() as u32;
+        positions.extend_from_slice(m.positions());
+        faces.extend(m.faces().map(|f| f.iter().map(|&v| v + base).collect()));
+    }
+    Mesh::from_polygons(positions, &faces).unwrap()
+}
+
+fn bytes(mesh: &Mesh, format: Format) -> Vec<u8> {
+    let mut out = Vec::new();
+    match format {
+        Format::Obj => io::obj::write_obj_plain(mesh, mesh.positions(), &mut out).unwrap(),
+        _ => io::stl::write_stl_plain(mesh, mesh.positions(), false, &mut out).unwrap(),
+    }
+    out
+}
+
+/// The smoothed file and the job's report.
+fn smooth(file: &[u8], format: Format) -> (Vec<u8>, meshsmooth_core::report::QualityReport) {
+    let params = Params::default();
+    let request = Request {
+        bytes: file,
+        format,
+        params: &params,
+        limits: ReadLimits::default(),
+        output_format: None,
+    };
+    let out = job::run(&request, &NoProgress, &AtomicBool::new(false)).unwrap();
+    (out.bytes, out.report)
+}
+
+/// The file's vertex positions, in its own order (unwelded).
+fn file_positions(file: &[u8], format: Format) -> Vec<DVec3> {
+    let options = ReadOptions {
+        weld: Some(false),
+        ..ReadOptions::default()
+    };
+    let doc = io::read_with(file, format, &options).unwrap();
+    doc.mesh.positions().to_vec()
+}
+
+/// Each output position by the bits of its input position (the file's
+/// vertices at one position agree), sorted.
+fn by_input_position(input: &[DVec3], output: &[DVec3]) -> Vec<([u64; 3], DVec3)> {
+    let mut out: Vec<([u64; 3], DVec3)> = input
+        .iter()
+        .zip(output)
+        .map(|(p, &q)| (p.to_array().map(f64::to_bits), q))
+        .collect();
+    out.sort_by_key(|x| x.0);
+    out.dedup_by_key(|x| x.0);
+    out
+}
+
+/// `mesh` with each vertex moved to its output position in `table`
+/// ([`by_input_position`]).
+fn moved(mesh: &Mesh, table: &[([u64; 3], DVec3)]) -> Mesh {
+    let at = |p: DVec3| {
+        let key = p.to_array().map(f64::to_bits);
+        let i = table.binary_search_by_key(&key, |x| x.0).unwrap();
+        table[i].1
+    };
+    let mut out = mesh.clone();
+    out.set_positions(mesh.positions().iter().map(|&p| at(p)).collect())
+        .unwrap();
+    out
+}
+
+#[test]
+fn two_labels_in_one_file_smooth_as_each_alone() {
+    // A ball in two labels split off centre: a cap and the rest, whose
+    // volume restorations differ, so restoring them together would move
+    // both (by half a percent and more of their volumes).
+    let split = 6;
+    let labels = [
+        voxel_boundary_mesh(&half_ball(true, split)),
+        voxel_boundary_mesh(&half_ball(false, split)),
+    ];
+    let both = together(&[&labels[0], &labels[1]]);
+    let alone: Vec<Mesh> = labels
+        .iter()
+        .map(|m| {
+            let (out, _) = smooth(&bytes(m, Format::Obj), Format::Obj);
+            moved(
+                m,
+                &by_input_position(m.positions(), &file_positions(&out, Format::Obj)),
+            )
+        })
+        .collect();
+    for format in [Format::Obj, Format::Stl] {
+        let file = bytes(&both, format);
+        let doc = io::read(&file, format, &ReadLimits::default()).unwrap();
+        let bodies = doc.bodies.as_ref().expect("two bodies told apart");
+        assert_eq!(bodies.count, 2, "{format}");
+        // Each body keeps its own copy of the wall's vertices.
+        assert_eq!(
+            doc.mesh.num_vertices(),
+            labels[0].num_vertices() + labels[1].num_vertices(),
+            "{format}"
+        );
+
+        let (out, report) = smooth(&file, format);
+        assert_eq!(report.mesh.touching_bodies, 2);
+        assert_eq!(report.mesh.shared_faces as usize, bodies.shared.len());
+        assert!(report.walls_parted.is_some_and(|w| w.max > 0.0));
+        assert!(
+            report
+                .warnings
+                .iter()
+                .any(|w| w.contains("touch face to face")),
+            "{:?}",
+            report.warnings
+        );
+        // The first label's vertices come first in the file (an STL has
+        // three a triangle, two triangles a quad).
+        let (input, output) = (file_positions(&file, format), file_positions(&out, format));
+        let split_at = match format {
+            Format::Obj => labels[0].num_vertices(),
+            _ => 6 * labels[0].num_faces(),
+        };
+        for (k, range) in [0..split_at, split_at..input.len()].into_iter().enumerate() {
+            let got = moved(
+                &labels[k],
+                &by_input_position(&input[range.clone()], &output[range]),
+            );
+            // The same surface as alone: the same volume, and the same
+            // positions but for the seeds of the adaptive neighbourhoods,
+            // picked by vertex number (the file numbers them otherwise).
+            let volume = got.signed_volume() / alone[k].signed_volume() - 1.0;
+            assert!(volume.abs() < 1e-4, "{format} label {k}: volume {volume}");
+            let squares: f64 = got
+                .positions()
+                .iter()
+                .zip(alone[k].positions())
+                .map(|(a, b)| a.distance_squared(*b))
+                .sum();
+            let rms = (squares / got.num_vertices() as f64).sqrt();
+            assert!(rms < 0.01, "{format} label {k}: {rms} voxel");
+        }
+    }
+}
+
+#[test]
+fn one_label_touching_itself_along_an_edge_is_one_body() {
+    // Two voxels of one mask touching along an edge share no face: no
+    // bodies are told apart, and the file welds as before.
+    let mask = VoxelMask::from_fn(IVec3::ZERO, [2, 2, 1], |i, j, _| i == j);
+    let mesh = voxel_boundary_mesh(&mask);
+    let doc = io::read(
+        &bytes(&mesh, Format::Stl),
+        Format::Stl,
+        &ReadLimits::default(),
+    )
+    .unwrap();
+    assert!(doc.bodies.is_none());
+    assert_eq!(doc.mesh.num_vertices(), mesh.num_vertices());
+}
+
+#[test]
+fn a_surface_written_twice_smooths_as_once() {
+    // The same ball twice in one file (an object exported twice): every
+    // face coincides with its copy, wound alike.
+    let ball = voxel_boundary_mesh(&half_ball(true, usize::MAX));
+    let twice = together(&[&ball, &ball]);
+    let file = bytes(&twice, Format::Obj);
+    let doc = io::read(&file, Format::Obj, &ReadLimits::default()).unwrap();
+    let bodies = doc.bodies.as_ref().expect("the copies told apart");
+    assert_eq!((bodies.count, bodies.shared.len()), (2, ball.num_faces()));
+    assert_eq!(doc.mesh.num_vertices(), twice.num_vertices());
+
+    let (out, _) = smooth(&file, Format::Obj);
+    let out = file_positions(&out, Format::Obj);
+    let (once, _) = smooth(&bytes(&ball, Format::Obj), Format::Obj);
+    let once = Mesh::from_polygons(
+        file_positions(&once, Format::Obj),
+        &ball.faces().map(<[u32]>::to_vec).collect::<Vec<_>>(),
+    )
+    .unwrap();
+    let n = ball.num_vertices();
+    for copy in [&out[..n], &out[n..]] {
+        let mut got = ball.clone();
+        got.set_positions(copy.to_vec()).unwrap();
+        let volume = got.signed_volume() / once.signed_volume() - 1.0;
+        assert!(volume.abs() < 1e-4, "volume {volume}");
+    }
+}
