@@ -106,7 +106,12 @@ impl Input {
 
     /// The report's counts of touching bodies ([`crate::io::FileBodies`]).
     fn fill_bodies(&self, report: &mut QualityReport) {
-        if let Some(bodies) = &self.document.bodies {
+        if let Some(bodies) = self
+            .document
+            .bodies
+            .as_ref()
+            .filter(|b| !b.shared.is_empty())
+        {
             report.mesh.touching_bodies = bodies.count as u64;
             report.mesh.shared_faces = bodies.shared.len() as u64;
         }
@@ -144,7 +149,12 @@ impl Input {
             .map_err(JobError::Write)?;
         let mut report = smoothed.report;
         report.mesh.file_vertices = self.file_vertices();
-        if let Some(bodies) = &self.document.bodies {
+        if let Some(bodies) = self
+            .document
+            .bodies
+            .as_ref()
+            .filter(|b| !b.shared.is_empty())
+        {
             let parted = wall_parting(self.mesh(), &bodies.shared, &smoothed.positions);
             report.warnings.push(format!(
                 "the file holds {} bodies whose surfaces touch face to face along {} shared \

@@ -212,3 +212,100 @@ fn a_surface_written_twice_smooths_as_once() {
         assert!(volume.abs() < 1e-4, "volume {volume}");
     }
 }
+
+/// A GLB holding `meshes` as glTF meshes of their own (one node each),
+/// triangles, f32 positions and u32 indices in one binary chunk.
+fn glb(meshes: &[&Mesh]) -> Vec<u8> {
+    let mut bin: Vec<u8> = Vec::new();
+    let (mut views, mut accessors, mut gltf_meshes, mut nodes) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (k, m) in meshes.iter().enumerate() {
+        let start = bin.len();
+        for p in m.positions() {
+            for c in p.to_array() {
+                bin.extend_from_slice(&(c as f32).to_le_bytes());
+            }
+        }
+        let positions_end = bin.len();
+        let mut count = 0;
+        for f in m.faces() {
+            for w in f.windows(2).skip(1) {
+                for i in [f[0], w[0], w[1]] {
+                    bin.extend_from_slice(&i.to_le_bytes());
+                    count += 1;
+                }
+            }
+        }
+        let (lo, hi) = m
+            .positions()
+            .iter()
+            .fold(([f64::MAX; 3], [f64::MIN; 3]), |(lo, hi), p| {
+                let a = p.to_array();
+                (
+                    std::array::from_fn(|i| lo[i].min(a[i])),
+                    std::array::from_fn(|i| hi[i].max(a[i])),
+                )
+            });
+        views.push(serde_json::json!({"buffer": 0, "byteOffset": start, "byteLength": positions_end - start}));
+        views.push(serde_json::json!({"buffer": 0, "byteOffset": positions_end, "byteLength": bin.len() - positions_end}));
+        accessors.push(serde_json::json!({"bufferView": 2 * k, "componentType": 5126, "count": m.num_vertices(), "type": "VEC3", "min": lo, "max": hi}));
+        accessors.push(serde_json::json!({"bufferView": 2 * k + 1, "componentType": 5125, "count": count, "type": "SCALAR"}));
+        gltf_meshes.push(serde_json::json!({"primitives": [{"attributes": {"POSITION": 2 * k}, "indices": 2 * k + 1}]}));
+        nodes.push(serde_json::json!({"mesh": k}));
+    }
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": (0..meshes.len()).collect::<Vec<_>>()}],
+        "nodes": nodes,
+        "meshes": gltf_meshes,
+        "accessors": accessors,
+        "bufferViews": views,
+        "buffers": [{"byteLength": bin.len()}],
+    });
+    let mut text = serde_json::to_vec(&json).unwrap();
+    text.resize(text.len().next_multiple_of(4), b' ');
+    bin.resize(bin.len().next_multiple_of(4), 0);
+    let mut out = Vec::new();
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&((12 + 8 + text.len() + 8 + bin.len()) as u32).to_le_bytes());
+    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&text);
+    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&bin);
+    out
+}
+
+#[test]
+fn the_meshes_of_a_gltf_smooth_each_as_alone() {
+    // Two labels as two glTF meshes: never welded to each other (each
+    // lives in its own space), and each gets its own volume back.
+    let split = 6;
+    let labels = [
+        voxel_boundary_mesh(&half_ball(true, split)),
+        voxel_boundary_mesh(&half_ball(false, split)),
+    ];
+    let file = glb(&[&labels[0], &labels[1]]);
+    let doc = io::read(&file, Format::Glb, &ReadLimits::default()).unwrap();
+    let bodies = doc.bodies.as_ref().expect("one body per glTF mesh");
+    assert_eq!((bodies.count, bodies.shared.len()), (2, 0));
+    let (out, report) = smooth(&file, Format::Glb);
+    assert_eq!(
+        report.mesh.touching_bodies, 0,
+        "the meshes do not share a vertex"
+    );
+    let out = file_positions(&out, Format::Glb);
+    let n = labels[0].num_vertices();
+    for (k, copy) in [&out[..n], &out[n..]].into_iter().enumerate() {
+        let (alone, _) = smooth(&glb(&[&labels[k]]), Format::Glb);
+        let alone = file_positions(&alone, Format::Glb);
+        let (mut got, mut want) = (labels[k].clone(), labels[k].clone());
+        got.set_positions(copy.to_vec()).unwrap();
+        want.set_positions(alone).unwrap();
+        let volume = got.signed_volume() / want.signed_volume() - 1.0;
+        assert!(volume.abs() < 1e-4, "label {k}: volume {volume}");
+    }
+}

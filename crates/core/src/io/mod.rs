@@ -224,15 +224,19 @@ pub struct Document {
     /// vertex in `mesh`.
     pub vertex_map: Option<Vec<u32>>,
     /// When the file holds bodies that touch face to face (segments written
-    /// into one file), welded each on its own ([`touching_bodies`]).
+    /// into one file), welded each on its own ([`touching_bodies`]), or
+    /// several glTF meshes, each in its own space: the bodies, each
+    /// smoothed on its own.
     pub bodies: Option<FileBodies>,
     source: Source,
 }
 
-/// The bodies of a file whose surfaces touch face to face: several closed
-/// surfaces with their own vertices (the segments of a segmentation
-/// exported together) that welding by position alone would join along
-/// their common walls. Each body is welded on its own.
+/// The bodies of a file: several closed surfaces with their own vertices
+/// whose surfaces touch face to face (the segments of a segmentation
+/// exported together), which welding by position alone would join along
+/// their common walls, and the meshes of a glTF file, each in its own
+/// space. Each body is welded on its own and gets its volume back on its
+/// own.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct FileBodies {
     /// One entry per vertex of [`Document::mesh`]: its body, from 0.
@@ -240,7 +244,8 @@ pub struct FileBodies {
     /// Number of bodies (at least 2).
     pub count: usize,
     /// The faces the bodies share: pairs of coincident faces (a wall's
-    /// face from each side), each pair once.
+    /// face from each side), each pair once; empty when the bodies are
+    /// only glTF meshes.
     pub shared: Vec<(u32, u32)>,
 }
 
@@ -473,6 +478,23 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
             (_, bodies) => (false, bodies, mesh, None),
         },
     };
+    // Each glTF mesh lives in its own space: a body of its own, never
+    // welded to another, whose volume is restored on its own.
+    let bodies = match groups.as_deref() {
+        Some(g) if g.iter().any(|&x| Some(&x) != g.first()) => {
+            let (of_vertex, shared) = match bodies {
+                Some(b) => (b.of_vertex, b.shared),
+                None => (vec![0; g.len()], Vec::new()),
+            };
+            let (of_vertex, count) = dense_pairs(g, &of_vertex);
+            Some(FileBodies {
+                of_vertex,
+                count,
+                shared,
+            })
+        }
+        _ => bodies,
+    };
     let bodies = bodies.map(|b| FileBodies {
         of_vertex: match &vertex_map {
             Some(map) => {
@@ -494,6 +516,21 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
         bodies,
         source,
     })
+}
+
+/// Each vertex's pair of a group (`groups`) and a body (`bodies`),
+/// numbered from 0 in the order first met, and the number of pairs.
+fn dense_pairs(groups: &[u32], bodies: &[u32]) -> (Vec<u32>, usize) {
+    let mut id: FastMap<(u32, u32), u32> = FastMap::with_hasher(FastState::new());
+    let of_vertex = groups
+        .iter()
+        .zip(bodies.iter().chain(std::iter::repeat(&0)))
+        .map(|(&g, &b)| {
+            let next = id.len() as u32;
+            *id.entry((g, b)).or_insert(next)
+        })
+        .collect();
+    (of_vertex, id.len())
 }
 
 /// Welds `mesh` ([`weld::weld`]); where that joins bodies face to face

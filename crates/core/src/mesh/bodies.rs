@@ -14,19 +14,22 @@
 //!
 //! Two faces that leave an edge at the same angle mark two bodies that
 //! touch: a wall's face from each side, passing the edge opposite ways,
-//! or the same surface written twice into one file. The faces are joined into sheets across every edge
-//! of two faces and, around an edge of more, to the next face inside the
-//! same body: a face's body lies behind it (against its normal), so
-//! turning about the edge from a face into its body, the first face met,
-//! coincident faces passed over, is the body's other face there when it
-//! passes the edge the other way. A voxel mask's own sheets part where its
-//! voxels touch along an edge, so sheets are not bodies; at each vertex,
-//! though, two sheets with a coincident pair of faces between them
-//! (there or anywhere) are on two sides, and every other sheet there
-//! takes the first side no such pair separates it from. A mask whose
-//! parts touch only along an edge keeps one side everywhere. A file that
-//! writes each body with its own vertices gives its sheets directly: the
-//! faces it joins by a vertex are one sheet.
+//! or the same surface written twice into one file. The faces are joined
+//! into sheets: those the file joins by a vertex of its own (a file that
+//! writes each body with its own vertices says so exactly), those across
+//! an edge of two faces, and, around an edge of more, a face and the next
+//! face inside the same body: a face's body lies behind it (against its
+//! normal), so turning about the edge from a face into its body, the first
+//! face met, coincident faces passed over, is the body's other face there
+//! when it passes the edge the other way. A turn never joins two sheets
+//! with coincident faces between them: where two labels' marching cubes
+//! triangulate their wall differently, it can meet the other label's face
+//! first. A voxel mask's own sheets part where its voxels touch along an
+//! edge, so sheets are not bodies; at each vertex, though, two sheets with
+//! coincident faces between them (there or anywhere) are on two sides, and
+//! every other sheet there takes the first side no such pair separates it
+//! from. A mask whose parts touch only along an edge keeps one side
+//! everywhere.
 
 use super::{Mesh, Topology};
 use glam::DVec3;
@@ -34,9 +37,8 @@ use rayon::prelude::*;
 
 /// Most faces at one edge that are sorted around it: two bodies touching
 /// give an edge four faces, two masks each touching itself along the edge
-/// eight. An edge with more joins none of
-/// its faces (they join their sheets elsewhere or stay apart), which
-/// bounds the work per edge.
+/// eight. An edge with more joins none of its faces (they join their
+/// sheets elsewhere or stay apart), which bounds the work per edge.
 const MAX_SORTED_FACES: usize = 16;
 
 /// Most sheets at one vertex that are sorted into sides; a vertex with
@@ -89,11 +91,8 @@ pub fn touching_bodies(
     if !around.iter().any(|a| matches!(a, Around::Coincident(..))) {
         return None;
     }
-    // The faces a file joins by its own vertices are one sheet: a file
-    // that writes each body with its own vertices says so exactly. Faces
-    // across an edge of two are one sheet too. The turns about the other
-    // edges then join sheets, but never two with coincident faces between
-    // them: two bodies' walls triangulated differently can mislead a turn.
+    // Sheets (module docs): by the file's vertices and the edges of two
+    // faces, then by the turns that join no coincident faces.
     let mut sheets = UnionFind::new(mesh.num_faces());
     if let Some(file) = file {
         join_by_file_vertices(file, &mut sheets);
