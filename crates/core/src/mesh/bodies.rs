@@ -46,6 +46,11 @@ const MAX_SORTED_FACES: usize = 16;
 /// per vertex.
 const MAX_SHEETS: usize = 16;
 
+/// Most sheets with coincident faces that are searched for one that two
+/// closed sheets have in common ([`vertex_sides`]); a sheet with more
+/// joins as if one were shared, which bounds the work per vertex.
+const PARTNER_CHECKS: usize = 64;
+
 /// Angles about an edge closer than this (radians) are one: coincident
 /// faces, the wall's two sides, differ only by rounding.
 const SAME_ANGLE: f64 = 1e-9;
@@ -132,21 +137,34 @@ pub fn touching_bodies(
     if shared.is_empty() {
         return None;
     }
-    // The sheet pairs with coincident faces between them, sorted.
+    // The sheet pairs with coincident faces between them, both ways,
+    // sorted.
     let mut apart: Vec<(u32, u32)> = shared
         .iter()
-        .map(|&(f, g)| {
+        .flat_map(|&(f, g)| {
             let (s, t) = (sheet[f as usize], sheet[g as usize]);
-            (s.min(t), s.max(t))
+            [(s, t), (t, s)]
         })
         .collect();
     apart.sort_unstable();
     apart.dedup();
+    // Sheets the file closes on its own vertices: the file keeps two of
+    // them apart wherever the weld would join them only at a vertex or an
+    // edge, unless both have coincident faces with one third sheet (two
+    // parts of one label beside another).
+    let mut closed = vec![file.is_some(); mesh.num_faces()];
+    if let Some(file) = file {
+        for (f, open) in open_in_file(file).into_iter().enumerate() {
+            if open && let Some(c) = closed.get_mut(sheet[f] as usize) {
+                *c = false;
+            }
+        }
+    }
     // Per vertex, its sheets' sides (empty where it has one side).
     let sides: Vec<Vec<(u32, u32)>> = (0..topo.num_vertices())
         .into_par_iter()
         .with_min_len(CHUNK)
-        .map(|v| vertex_sides(topo.vertex_faces(v), &sheet, &apart))
+        .map(|v| vertex_sides(topo.vertex_faces(v), &sheet, &apart, &closed))
         .collect();
     let sides = &sides;
     let corner_side: Vec<u32> = (0..mesh.num_faces())
@@ -180,6 +198,31 @@ fn join_by_file_vertices(file: &Mesh, sheets: &mut UnionFind) {
             }
         }
     }
+}
+
+/// Per face of `file`, whether one of its sides has no face passing it
+/// the other way on the file's own vertices (an open rim of the file: a
+/// crack the weld closes, or every side of a separate face).
+fn open_in_file(file: &Mesh) -> Vec<bool> {
+    fn sides(face: &[u32]) -> impl Iterator<Item = (u32, u32)> + '_ {
+        let k = face.len();
+        (0..k).map(move |i| (face[i], face[(i + 1) % k]))
+    }
+    let mut passes: Vec<u64> = file
+        .faces()
+        .flat_map(sides)
+        .map(|(a, b)| u64::from(a) << 32 | u64::from(b))
+        .collect();
+    passes.par_sort_unstable();
+    file.faces()
+        .map(|face| {
+            sides(face).any(|(a, b)| {
+                passes
+                    .binary_search(&(u64::from(b) << 32 | u64::from(a)))
+                    .is_err()
+            })
+        })
+        .collect()
 }
 
 /// The bodies of `split` (its topology `topo`), a mesh whose touching
@@ -317,10 +360,17 @@ impl Apart {
 
 /// The sides of the sheets at a vertex with `faces`: each sheet, in the
 /// order of its lowest face there, takes the first side none of whose
-/// sheets has coincident faces with it anywhere (`apart`: sorted sheet
-/// pairs), or a new one. Empty when every sheet takes side 0, or the
+/// sheets has coincident faces with it anywhere (`apart`: sheet pairs,
+/// both ways, sorted) or is, like it, closed on the file's own vertices
+/// (`closed`, by sheet) with no coincident faces with a third sheet in
+/// common, or a new one. Empty when every sheet takes side 0, or the
 /// vertex has more than [`MAX_SHEETS`] sheets.
-fn vertex_sides(faces: &[u32], sheet: &[u32], apart: &[(u32, u32)]) -> Vec<(u32, u32)> {
+fn vertex_sides(
+    faces: &[u32],
+    sheet: &[u32],
+    apart: &[(u32, u32)],
+    closed: &[bool],
+) -> Vec<(u32, u32)> {
     let mut sheets = [0u32; MAX_SHEETS];
     let mut count = 0;
     for &f in faces {
@@ -336,7 +386,26 @@ fn vertex_sides(faces: &[u32], sheet: &[u32], apart: &[(u32, u32)]) -> Vec<(u32,
     if count < 2 {
         return Vec::new();
     }
-    let is_apart = |s: u32, t: u32| apart.binary_search(&(s.min(t), s.max(t))).is_ok();
+    let is_closed = |s: u32| closed.get(s as usize).copied().unwrap_or(false);
+    // The sheets with coincident faces with `s`: its run of `apart`, which
+    // holds each pair both ways, sorted.
+    let partners = |s: u32| {
+        let start = apart.partition_point(|p| p.0 < s);
+        apart[start..]
+            .iter()
+            .take_while(move |p| p.0 == s)
+            .map(|p| p.1)
+    };
+    let coincident = |s: u32, t: u32| apart.binary_search(&(s, t)).is_ok();
+    // A partner shared, among the first few of the sheet with fewer
+    // (past them, taken as shared: the sheets join as a mask's parts do).
+    let few = |s: u32| partners(s).take(PARTNER_CHECKS + 1).count();
+    let share_partner = |s: u32, t: u32| {
+        let (s, t) = if few(s) <= few(t) { (s, t) } else { (t, s) };
+        few(s) > PARTNER_CHECKS || partners(s).any(|x| coincident(x, t))
+    };
+    let is_apart =
+        |s: u32, t: u32| coincident(s, t) || (is_closed(s) && is_closed(t) && !share_partner(s, t));
     let mut side_of = [0u32; MAX_SHEETS];
     let mut sides = 0u32;
     for i in 0..count {
@@ -563,6 +632,25 @@ mod tests {
         Mesh::from_polygons(positions, &faces).unwrap()
     }
 
+    /// Cubes at `origins`, each on eight vertices of its own (as a file
+    /// that writes each body apart), faces in the order of [`cubes`].
+    fn cubes_apart(origins: &[[i32; 3]]) -> Mesh {
+        let mut positions = Vec::new();
+        let mut faces = Vec::new();
+        for o in origins {
+            let base = positions.len() as u32;
+            positions.extend((0..8).map(|c| {
+                DVec3::new(
+                    f64::from(o[0] + (c & 1)),
+                    f64::from(o[1] + ((c >> 1) & 1)),
+                    f64::from(o[2] + ((c >> 2) & 1)),
+                )
+            }));
+            faces.extend(cube_faces(|c| base + c as u32));
+        }
+        Mesh::from_polygons(positions, &faces).unwrap()
+    }
+
     #[test]
     fn two_cubes_sharing_a_face_take_two_sides_of_its_corners() {
         let mesh = cubes(&[[0, 0, 0], [1, 0, 0]]);
@@ -617,6 +705,36 @@ mod tests {
         }
         assert!(sides[0].iter().all(|&s| s == 0), "{:?}", sides[0]);
         assert!(sides[1].iter().all(|&s| s == 1), "{:?}", sides[1]);
+    }
+
+    #[test]
+    fn closed_file_parts_meeting_at_an_edge_stay_apart() {
+        // Cubes A and B share a face; C touches B along an edge only. In a
+        // file that gives each cube its own vertices (and closes each), C
+        // keeps its own side of that edge; without the file's vertices
+        // (an STL) it joins B there, as a mask's parts do.
+        let mesh = cubes(&[[0, 0, 0], [1, 0, 0], [2, 1, 0]]);
+        let file = cubes_apart(&[[0, 0, 0], [1, 0, 0], [2, 1, 0]]);
+        let topo = Topology::build(&mesh);
+        let edge_sides = |bodies: &TouchingBodies| {
+            let p = mesh.positions();
+            let mut sides = [Vec::new(), Vec::new()];
+            for f in 6..18 {
+                for (j, &v) in mesh.face(f).iter().enumerate() {
+                    let q = p[v as usize];
+                    if q.x == 2.0 && q.y == 1.0 {
+                        sides[usize::from(f >= 12)].push(bodies.corner_side[4 * f + j]);
+                    }
+                }
+            }
+            sides
+        };
+        let apart = touching_bodies(&mesh, &topo, Some(&file)).unwrap();
+        let [b, c] = edge_sides(&apart);
+        assert!(b.iter().all(|&s| c.iter().all(|&t| s != t)), "{b:?} {c:?}");
+        let joined = touching_bodies(&mesh, &topo, None).unwrap();
+        let [b, c] = edge_sides(&joined);
+        assert!(b.iter().chain(&c).all(|&s| s == b[0]), "{b:?} {c:?}");
     }
 
     #[test]
