@@ -770,7 +770,7 @@ pub fn run(
 /// [`run`] on a mesh that holds bodies touching face to face, each welded
 /// on its own ([`crate::io::FileBodies`]; `bodies`: one entry per vertex,
 /// its body, or `None`): each body's solids and cavities get their volume
-/// back on their own ([`VolumeParts::by_body`]) and its pinches read its
+/// back on their own (`VolumeParts::by_body`) and its pinches read its
 /// own faces only, so a body smooths as it would alone. Entries beyond a
 /// mismatched length are ignored (then as `None`).
 pub fn run_bodies(
