@@ -159,7 +159,8 @@ impl Input {
             report.warnings.push(format!(
                 "the file holds {} bodies whose surfaces touch face to face along {} shared \
                  faces (segments written into one file): each body was welded and smoothed on \
-                 its own, and their shared walls parted by {:.3} on average and {:.3} at most",
+                 its own, and their shared walls parted by {:.3} on average and {:.3} at most (in \
+                 the mesh's units)",
                 bodies.count,
                 bodies.shared.len(),
                 parted.mean,
