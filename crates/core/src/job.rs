@@ -104,14 +104,18 @@ impl Input {
             .map(|map| map.len() as u64)
     }
 
-    /// The report's counts of touching bodies ([`crate::io::FileBodies`]).
-    fn fill_bodies(&self, report: &mut QualityReport) {
-        if let Some(bodies) = self
-            .document
+    /// The file's bodies when they touch face to face (shared faces):
+    /// glTF meshes alone are bodies of no report ([`crate::io::FileBodies`]).
+    fn touching_bodies(&self) -> Option<&io::FileBodies> {
+        self.document
             .bodies
             .as_ref()
             .filter(|b| !b.shared.is_empty())
-        {
+    }
+
+    /// The report's counts of touching bodies.
+    fn fill_bodies(&self, report: &mut QualityReport) {
+        if let Some(bodies) = self.touching_bodies() {
             report.mesh.touching_bodies = bodies.count as u64;
             report.mesh.shared_faces = bodies.shared.len() as u64;
         }
@@ -149,12 +153,7 @@ impl Input {
             .map_err(JobError::Write)?;
         let mut report = smoothed.report;
         report.mesh.file_vertices = self.file_vertices();
-        if let Some(bodies) = self
-            .document
-            .bodies
-            .as_ref()
-            .filter(|b| !b.shared.is_empty())
-        {
+        if let Some(bodies) = self.touching_bodies() {
             let parted = wall_parting(self.mesh(), &bodies.shared, &smoothed.positions);
             report.warnings.push(format!(
                 "the file holds {} bodies whose surfaces touch face to face along {} shared \

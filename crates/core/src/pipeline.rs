@@ -770,7 +770,7 @@ pub fn run(
 /// [`run`] on a mesh that holds bodies touching face to face, each welded
 /// on its own ([`crate::io::FileBodies`]; `bodies`: one entry per vertex,
 /// its body, or `None`): each body's solids and cavities get their volume
-/// back on their own (`VolumeParts::by_body`) and its pinches read its
+/// back on their own (`VolumeParts::new`) and its pinches read its
 /// own faces only, so a body smooths as it would alone. Entries beyond a
 /// mismatched length are ignored (then as `None`).
 pub fn run_bodies(
@@ -848,14 +848,10 @@ pub fn run_bodies(
             // the vertices on a smooth surface; the paper's passes alone
             // (`staircase_steps` 0) may leave a voxel's corners where they
             // were.
-            let parts = if lattice && params.staircase_steps > 0 {
-                VolumeParts::for_voxel_lattice(mesh, topo)
+            if lattice && params.staircase_steps > 0 {
+                VolumeParts::for_voxel_lattice(mesh, topo, bodies)
             } else {
-                VolumeParts::new(mesh, topo)
-            };
-            match bodies {
-                Some(b) => parts.by_body(mesh, b),
-                None => parts,
+                VolumeParts::new(mesh, topo, bodies)
             }
         });
     let away = lattice.then(|| away_from_pinches(topo, &masks.movable));
@@ -1521,7 +1517,7 @@ mod tests {
         let mesh = voxel_boundary_mesh(&mask);
         let topo = Topology::build(&mesh);
         let movable = movable_mask(&topo, BoundaryRule::Fixed);
-        let parts = VolumeParts::new(&mesh, &topo);
+        let parts = VolumeParts::new(&mesh, &topo, None);
         let centre = DVec3::splat(3.0);
         let shrunk = mesh
             .positions()

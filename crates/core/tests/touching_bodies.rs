@@ -22,6 +22,12 @@ fn half_ball(left: bool, split: usize) -> VoxelMask {
     })
 }
 
+/// The voxel quads of a ball in two labels split off centre (at x = 6):
+/// a cap and the rest, whose volume restorations differ.
+fn cap_and_rest() -> [Mesh; 2] {
+    [true, false].map(|left| voxel_boundary_mesh(&half_ball(left, 6)))
+}
+
 /// `meshes` in one mesh, each with its own vertices.
 fn together(meshes: &[&Mesh]) -> Mesh {
     let mut positions = Vec::new();
@@ -96,14 +102,9 @@ fn moved(mesh: &Mesh, table: &[([u64; 3], DVec3)]) -> Mesh {
 
 #[test]
 fn two_labels_in_one_file_smooth_as_each_alone() {
-    // A ball in two labels split off centre: a cap and the rest, whose
-    // volume restorations differ, so restoring them together would move
-    // both (by half a percent and more of their volumes).
-    let split = 6;
-    let labels = [
-        voxel_boundary_mesh(&half_ball(true, split)),
-        voxel_boundary_mesh(&half_ball(false, split)),
-    ];
+    // Restoring the cap's and the rest's volumes together would move both
+    // (by half a percent and more of their volumes).
+    let labels = cap_and_rest();
     let both = together(&[&labels[0], &labels[1]]);
     let alone: Vec<Mesh> = labels
         .iter()
@@ -283,11 +284,7 @@ fn glb(meshes: &[&Mesh]) -> Vec<u8> {
 fn the_meshes_of_a_gltf_smooth_each_as_alone() {
     // Two labels as two glTF meshes: never welded to each other (each
     // lives in its own space), and each gets its own volume back.
-    let split = 6;
-    let labels = [
-        voxel_boundary_mesh(&half_ball(true, split)),
-        voxel_boundary_mesh(&half_ball(false, split)),
-    ];
+    let labels = cap_and_rest();
     let file = glb(&[&labels[0], &labels[1]]);
     let doc = io::read(&file, Format::Glb, &ReadLimits::default()).unwrap();
     let bodies = doc.bodies.as_ref().expect("one body per glTF mesh");

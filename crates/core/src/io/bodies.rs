@@ -30,7 +30,7 @@ pub(super) fn dense_pairs(groups: &[u32], bodies: &[u32]) -> (Vec<u32>, usize) {
     let mut id: FastMap<(u32, u32), u32> = FastMap::with_hasher(FastState::new());
     let of_vertex = groups
         .iter()
-        .zip(bodies.iter().chain(std::iter::repeat(&0)))
+        .zip(bodies)
         .map(|(&g, &b)| {
             let next = id.len() as u32;
             *id.entry((g, b)).or_insert(next)

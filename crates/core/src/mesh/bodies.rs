@@ -592,62 +592,48 @@ impl UnionFind {
 mod tests {
     use super::*;
 
-    /// The six faces of the unit cube at `origin`, outward, on vertices
-    /// numbered by `index` of the cube's corner (bits x, y, z).
-    fn cube_faces(index: impl Fn(usize) -> u32) -> Vec<[u32; 4]> {
-        const FACES: [[usize; 4]; 6] = [
-            [0, 2, 3, 1], // z-
-            [4, 5, 7, 6], // z+
-            [0, 1, 5, 4], // y-
-            [2, 6, 7, 3], // y+
-            [0, 4, 6, 2], // x-
-            [1, 3, 7, 5], // x+
-        ];
-        FACES.iter().map(|f| f.map(&index)).collect()
+    /// Unit cubes at `origins`: each cube's corners (the unit cube's,
+    /// [`crate::mesh::test_unit_cube`], moved) and its six faces, outward,
+    /// on the vertices `index` gives its corners.
+    fn cube_corners_and_faces(
+        origins: &[[i32; 3]],
+        mut index: impl FnMut(DVec3) -> u32,
+    ) -> Vec<[u32; 4]> {
+        let unit = crate::mesh::test_unit_cube();
+        let mut faces = Vec::new();
+        for o in origins {
+            let shift = DVec3::new(f64::from(o[0]), f64::from(o[1]), f64::from(o[2]));
+            let corners: Vec<u32> = unit.positions().iter().map(|&p| index(p + shift)).collect();
+            faces.extend(
+                unit.faces()
+                    .map(|f| [0, 1, 2, 3].map(|k| corners[f[k] as usize])),
+            );
+        }
+        faces
     }
 
     /// Cubes at `origins` on one welded lattice of vertices.
     fn cubes(origins: &[[i32; 3]]) -> Mesh {
         let mut positions: Vec<DVec3> = Vec::new();
-        let mut faces = Vec::new();
-        for o in origins {
-            let corners: Vec<u32> = (0..8)
-                .map(|c| {
-                    let p = DVec3::new(
-                        f64::from(o[0] + (c & 1)),
-                        f64::from(o[1] + ((c >> 1) & 1)),
-                        f64::from(o[2] + ((c >> 2) & 1)),
-                    );
-                    match positions.iter().position(|&q| q == p) {
-                        Some(i) => i as u32,
-                        None => {
-                            positions.push(p);
-                            positions.len() as u32 - 1
-                        }
-                    }
-                })
-                .collect();
-            faces.extend(cube_faces(|c| corners[c]));
-        }
+        let faces =
+            cube_corners_and_faces(origins, |p| match positions.iter().position(|&q| q == p) {
+                Some(i) => i as u32,
+                None => {
+                    positions.push(p);
+                    positions.len() as u32 - 1
+                }
+            });
         Mesh::from_polygons(positions, &faces).unwrap()
     }
 
     /// Cubes at `origins`, each on eight vertices of its own (as a file
     /// that writes each body apart), faces in the order of [`cubes`].
     fn cubes_apart(origins: &[[i32; 3]]) -> Mesh {
-        let mut positions = Vec::new();
-        let mut faces = Vec::new();
-        for o in origins {
-            let base = positions.len() as u32;
-            positions.extend((0..8).map(|c| {
-                DVec3::new(
-                    f64::from(o[0] + (c & 1)),
-                    f64::from(o[1] + ((c >> 1) & 1)),
-                    f64::from(o[2] + ((c >> 2) & 1)),
-                )
-            }));
-            faces.extend(cube_faces(|c| base + c as u32));
-        }
+        let mut positions: Vec<DVec3> = Vec::new();
+        let faces = cube_corners_and_faces(origins, |p| {
+            positions.push(p);
+            positions.len() as u32 - 1
+        });
         Mesh::from_polygons(positions, &faces).unwrap()
     }
 

@@ -107,17 +107,32 @@ pub struct Restored {
 }
 
 impl VolumeParts {
-    /// The solids and the cavities of `mesh` and their input volumes.
-    pub fn new(mesh: &Mesh, topo: &Topology) -> Self {
+    /// The solids and the cavities of `mesh` and their input volumes; with
+    /// `bodies` (one entry per vertex: a file whose bodies touch face to
+    /// face, [`crate::io::FileBodies`]), each body's solids and its
+    /// cavities, as they would be alone. `bodies` of another length count
+    /// as one body.
+    pub fn new(mesh: &Mesh, topo: &Topology, bodies: Option<&[u32]>) -> Self {
         let (component, count) = topo.component_ids();
         let component_volumes = part_volumes(mesh, mesh.positions(), &component, count);
-        let cavity: Vec<bool> = component_volumes.iter().map(|&v| v < 0.0).collect();
-        let two = cavity.iter().any(|&c| c) && cavity.iter().any(|&c| !c);
+        let bodies = bodies.filter(|b| b.len() == component.len());
+        let mut body_of = vec![0u32; count];
+        if let Some(bodies) = bodies {
+            // A component lies in one body: the body of any of its vertices.
+            for (&c, &b) in component.iter().zip(bodies) {
+                body_of[c as usize] = b;
+            }
+        }
+        // One part per body and sign, numbered in that order.
+        let key = |c: u32| (body_of[c as usize], component_volumes[c as usize] < 0.0);
+        let mut keys: Vec<(u32, bool)> = (0..count as u32).map(key).collect();
+        keys.sort_unstable();
+        keys.dedup();
         let part_of: Vec<u32> = component
             .iter()
-            .map(|&c| u32::from(two && cavity[c as usize]))
+            .map(|&c| keys.binary_search(&key(c)).unwrap_or(0) as u32)
             .collect();
-        let targets = part_volumes(mesh, mesh.positions(), &part_of, 1 + usize::from(two));
+        let targets = part_volumes(mesh, mesh.positions(), &part_of, keys.len());
         VolumeParts {
             part_of,
             targets,
@@ -170,41 +185,11 @@ impl VolumeParts {
     /// The parts of a voxel-boundary mesh, whose flat input faces enclose
     /// the mask's volume: the restoration gives that volume to the smooth
     /// surface through the output's vertices (module docs).
-    pub fn for_voxel_lattice(mesh: &Mesh, topo: &Topology) -> Self {
+    pub fn for_voxel_lattice(mesh: &Mesh, topo: &Topology, bodies: Option<&[u32]>) -> Self {
         VolumeParts {
             smooth_surface: true,
-            ..VolumeParts::new(mesh, topo)
+            ..VolumeParts::new(mesh, topo, bodies)
         }
-    }
-
-    /// These parts split by body (`bodies`: one entry per vertex), for a
-    /// file whose bodies touch face to face ([`crate::io::FileBodies`]):
-    /// each body's solids share an offset, and its cavities another, as
-    /// they would alone. Unchanged when `bodies` does not have one entry
-    /// per vertex.
-    pub fn by_body(mut self, mesh: &Mesh, bodies: &[u32]) -> Self {
-        if bodies.len() != self.component.len() {
-            return self;
-        }
-        let count = self.component_volumes.len();
-        let mut body_of = vec![u32::MAX; count];
-        for (&c, &b) in self.component.iter().zip(bodies) {
-            if body_of[c as usize] == u32::MAX {
-                body_of[c as usize] = b;
-            }
-        }
-        let key = |c: usize| (body_of[c], self.component_volumes[c] < 0.0);
-        let mut keys: Vec<(u32, bool)> = (0..count).map(key).collect();
-        keys.sort_unstable();
-        keys.dedup();
-        let part_of: Vec<u32> = self
-            .component
-            .iter()
-            .map(|&c| keys.binary_search(&key(c as usize)).unwrap_or(0) as u32)
-            .collect();
-        self.targets = part_volumes(mesh, mesh.positions(), &part_of, keys.len());
-        self.part_of = part_of;
-        self
     }
 
     /// The input volume of the whole mesh, in magnitude (at least the
@@ -441,7 +426,7 @@ mod tests {
     fn restores_the_volume_unless_the_result_is_rejected() {
         let (_, mesh) = voxel_sphere(6.0);
         let topo = Topology::build(&mesh);
-        let parts = VolumeParts::new(&mesh, &topo);
+        let parts = VolumeParts::new(&mesh, &topo, None);
         let movable = vec![true; mesh.num_vertices()];
         let target = mesh.signed_volume();
         // Shrink by 1% along the radius: about 3% of the volume.
@@ -513,11 +498,11 @@ mod tests {
 
         // Restored as a voxel lattice's parts, the polygons aim at the
         // input volume less the bulge, within the tolerance.
-        let parts = VolumeParts::for_voxel_lattice(&mesh, &topo);
+        let parts = VolumeParts::for_voxel_lattice(&mesh, &topo, None);
         let targets = restoration_targets(&mesh, &parts, mesh.positions(), &normals);
         let room = BULGE_TOLERANCE * polygons;
         assert!((targets[0] - (polygons - bulge.min(room))).abs() < 1e-9 * polygons);
-        let plain = VolumeParts::new(&mesh, &topo);
+        let plain = VolumeParts::new(&mesh, &topo, None);
         let targets = restoration_targets(&mesh, &plain, mesh.positions(), &normals);
         assert_eq!(targets, plain.targets);
         assert!((targets[0] - polygons).abs() < 1e-9 * polygons);
@@ -550,7 +535,7 @@ mod tests {
             .collect();
         let mesh = Mesh::from_polygons(positions, &faces).unwrap();
         let topo = Topology::build(&mesh);
-        let parts = VolumeParts::new(&mesh, &topo);
+        let parts = VolumeParts::new(&mesh, &topo, None);
         assert_eq!(parts.targets.len(), 1, "two solids, one part");
         let ball_faces = &faces[..ball.num_faces()];
         let ball_volume = |q: &[DVec3]| {
@@ -591,7 +576,7 @@ mod tests {
         let shell = shapes::shell(8.0, 2.0);
         let mesh = shapes::voxel_boundary_mesh(&shapes::voxel_mask(&shell));
         let topo = Topology::build(&mesh);
-        let parts = VolumeParts::new(&mesh, &topo);
+        let parts = VolumeParts::new(&mesh, &topo, None);
         assert_eq!(parts.targets.len(), 2, "outer and inner surface");
         assert!(parts.targets[0] > 0.0 && parts.targets[1] < 0.0);
         let c = mesh.positions().iter().sum::<DVec3>() / mesh.num_vertices() as f64;
