@@ -732,3 +732,71 @@ fn two_labels_in_one_stl_are_told_apart_and_reported() {
         report["warnings"]
     );
 }
+
+#[test]
+fn a_label_complex_is_smoothed_region_by_region_and_reported() {
+    // A block of 6 x 4 x 4 voxels in three labels (x < 2, 2-3, 4-5) as VTK's
+    // surface nets write a label map: one vertex per position, each wall
+    // between two labels written once.
+    let dir = scratch("label_complex");
+    let mut index = std::collections::HashMap::new();
+    let mut positions: Vec<glam::DVec3> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    let mut all: Vec<Vec<u32>> = Vec::new();
+    for label in 0..3 {
+        let mask =
+            shapes::VoxelMask::from_fn(glam::IVec3::ZERO, [6, 4, 4], |i, _, _| i / 2 == label);
+        let mesh = shapes::voxel_boundary_mesh(&mask);
+        for face in faces(&mesh) {
+            let face: Vec<u32> = face
+                .iter()
+                .map(|&v| {
+                    let p = mesh.positions()[v as usize];
+                    *index
+                        .entry(p.to_array().map(f64::to_bits))
+                        .or_insert_with(|| {
+                            positions.push(p);
+                            positions.len() as u32 - 1
+                        })
+                })
+                .collect();
+            let mut key = face.clone();
+            key.sort_unstable();
+            if seen.insert(key) {
+                all.push(face);
+            }
+        }
+    }
+    let complex = Mesh::from_polygons(positions, &all).unwrap();
+    let mut bytes = Vec::new();
+    io::obj::write_obj_plain(&complex, complex.positions(), &mut bytes).unwrap();
+    let input = dir.join("labels.obj");
+    std::fs::write(&input, &bytes).unwrap();
+
+    let out = meshsmooth(&["report", path_str(&input)]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    let table = String::from_utf8(out.stdout).unwrap();
+    // Two walls of 4 x 4 voxel faces.
+    assert!(
+        table.contains("regions          3 sharing 32 wall faces"),
+        "{table}"
+    );
+    // The three labels' volume, each wall counted for both.
+    assert!(table.contains("volume           96.0000\n"), "{table}");
+
+    let (output, report) = (dir.join("out.obj"), dir.join("report.json"));
+    let report = smooth_with_report(&input, &output, &report, &[]);
+    assert_eq!(report["mesh"]["regions"], 3);
+    assert_eq!(report["mesh"]["region_walls"], 32);
+    assert!(report["walls_joined"]["max"].as_f64().is_some());
+    assert!(report["joined_fixes"].is_object());
+    assert!(
+        report["warnings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|w| w.as_str().unwrap().contains("complex of 3 regions")),
+        "{}",
+        report["warnings"]
+    );
+}

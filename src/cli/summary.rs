@@ -124,6 +124,13 @@ pub fn measured(w: &mut impl Write, m: &MeshStatistics, s: &StageMeasures) -> io
             m.touching_bodies, m.shared_faces
         )?;
     }
+    if m.regions > 0 {
+        writeln!(
+            w,
+            "regions          {} sharing {} wall faces (a multi-label complex), smoothed one by one",
+            m.regions, m.region_walls
+        )?;
+    }
     writeln!(w, "mean edge length {}", sig(s.mean_edge_length))?;
     if let Some(c) = s.curvature_variation {
         writeln!(

@@ -25,6 +25,21 @@ pub enum Stage {
 }
 
 impl Stage {
+    /// Every stage, in pipeline order.
+    pub const ALL: [Stage; 6] = [
+        Stage::Analyse,
+        Stage::Initial,
+        Stage::Label,
+        Stage::Adaptive,
+        Stage::Quality,
+        Stage::Report,
+    ];
+
+    /// The stage whose [`Stage::name`] is `name`.
+    pub fn named(name: &str) -> Option<Stage> {
+        Stage::ALL.into_iter().find(|s| s.name() == name)
+    }
+
     /// Stable snake_case name.
     pub fn name(self) -> &'static str {
         match self {

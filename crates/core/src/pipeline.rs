@@ -10,7 +10,7 @@ use crate::fit::quadric_fit::FitModel;
 use crate::mesh::lattice::{is_marching_cubes_lattice, is_voxel_lattice};
 use crate::mesh::{
     Mesh, Orientation, PairedFaces, Topology, VertexKind, mean_edge_length, orientation,
-    paired_voxel_faces, signed_volume,
+    paired_voxel_faces, regions, signed_volume,
 };
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
 use crate::quality::{SLIVER_FRACTION, has_sliver_angle, improve, is_defective};
@@ -37,6 +37,8 @@ use rayon::prelude::*;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 use thiserror::Error;
+
+mod regions;
 
 /// Why a run did not produce a result.
 #[derive(Debug, Error, Clone, PartialEq)]
@@ -263,6 +265,15 @@ impl Timings {
         let value = f();
         self.add(stage, ms(t));
         value
+    }
+
+    /// Adds another run's timings (a report's entries), stage by stage.
+    fn absorb(&mut self, other: &[StageTiming]) {
+        for t in other {
+            if let Some(stage) = Stage::named(&t.stage) {
+                self.add(stage, t.ms);
+            }
+        }
     }
 
     fn add(&mut self, stage: Stage, ms: f64) {
@@ -780,6 +791,20 @@ pub fn run_bodies(
     progress: &dyn Progress,
     cancel: &AtomicBool,
 ) -> Result<SmoothOutput, SmoothError> {
+    run_inner(mesh, bodies, params, progress, cancel, true)
+}
+
+/// [`run_bodies`]; with `complexes`, a multi-label complex
+/// ([`crate::mesh::regions`]) is smoothed region by region
+/// ([`regions::run`]), each region's surface a body of its own.
+fn run_inner(
+    mesh: &Mesh,
+    bodies: Option<&[u32]>,
+    params: &Params,
+    progress: &dyn Progress,
+    cancel: &AtomicBool,
+    complexes: bool,
+) -> Result<SmoothOutput, SmoothError> {
     params.validate()?;
     let bodies = bodies.filter(|b| b.len() == mesh.num_vertices());
     let start = Instant::now();
@@ -790,6 +815,21 @@ pub fn run_bodies(
     let (oriented, input_topo, input_masks, mut report) =
         timings.time(Stage::Analyse, || analyse(mesh, params))?;
     let mesh = oriented.as_ref().unwrap_or(mesh);
+    if complexes && bodies.is_none() && params.method == Method::WangYu {
+        let split = timings.time(Stage::Analyse, || {
+            regions(mesh, &input_topo).and_then(|r| regions::split(mesh, &r).map(|s| (r, s)))
+        });
+        if let Some((r, split)) = split {
+            let context = regions::Context {
+                timings,
+                start,
+                params,
+                progress,
+                cancel,
+            };
+            return regions::run(mesh, &input_topo, &r, split, report, context);
+        }
+    }
     // A voxel mesh written as triangles is smoothed as its voxel faces; the
     // measures stay on the file's triangles.
     let input_mesh = mesh;
@@ -1297,6 +1337,13 @@ pub fn measure(mesh: &Mesh, params: &Params) -> QualityReport {
         params.quality.short_edge_fraction,
     ));
     report_orientation(&orientation, &mut report);
+    if let Some(r) = regions(mesh, &topo) {
+        report.mesh.regions = r.count as u64;
+        report.mesh.region_walls = r.walls as u64;
+        if let Some(v) = report.stages.input.as_mut().and_then(|s| s.volume.as_mut()) {
+            v.volume = r.volume(mesh, mesh.positions());
+        }
+    }
     if let Err(e) = shape {
         report.warnings.push(format!(
             "no curvature measured and no smoothing possible: {e}"

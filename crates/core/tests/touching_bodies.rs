@@ -306,3 +306,91 @@ fn the_meshes_of_a_gltf_smooth_each_as_alone() {
         assert!(volume.abs() < 1e-4, "label {k}: volume {volume}");
     }
 }
+
+/// `labels` as one complex: their faces on one vertex per position, each
+/// wall the labels share written once (wound for the first label).
+fn complex(labels: &[Mesh]) -> Mesh {
+    let mut index: std::collections::HashMap<[u64; 3], u32> = Default::default();
+    let mut positions = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    let mut faces: Vec<Vec<u32>> = Vec::new();
+    for m in labels {
+        for face in m.faces() {
+            let face: Vec<u32> = face
+                .iter()
+                .map(|&v| {
+                    let p = m.positions()[v as usize];
+                    *index
+                        .entry(p.to_array().map(f64::to_bits))
+                        .or_insert_with(|| {
+                            positions.push(p);
+                            (positions.len() - 1) as u32
+                        })
+                })
+                .collect();
+            let mut key = face.clone();
+            key.sort_unstable();
+            if seen.insert(key) {
+                faces.push(face);
+            }
+        }
+    }
+    Mesh::from_polygons(positions, &faces).unwrap()
+}
+
+#[test]
+fn two_labels_as_one_complex_smooth_region_by_region() {
+    // The cap and the rest with their wall written once, as VTK's surface
+    // nets write a label map: each label is smoothed as its own closed
+    // surface and each wall vertex takes the mean of the two.
+    let labels = cap_and_rest();
+    let mesh = complex(&labels);
+    let params = Params::default();
+    let cancel = AtomicBool::new(false);
+    let out = meshsmooth_core::run(&mesh, &params, &NoProgress, &cancel).unwrap();
+    let report = &out.report;
+    let walls = labels[0].num_faces() + labels[1].num_faces() - mesh.num_faces();
+    assert_eq!(report.mesh.regions, 2);
+    assert_eq!(report.mesh.region_walls as usize, walls);
+    assert!(report.walls_joined.is_some_and(|w| w.max > 0.0));
+    assert!(report.joined_fixes.is_some());
+    assert!(
+        report
+            .warnings
+            .iter()
+            .any(|w| w.contains("complex of 2 regions")),
+        "{:?}",
+        report.warnings
+    );
+    let final_stage = report.stages.final_stage.as_ref().unwrap();
+    assert_eq!(
+        (final_stage.inverted_faces, final_stage.twisted_quads),
+        (0, 0)
+    );
+
+    // Each label alone, by input position; a complex vertex on both labels
+    // (the wall's) is expected at their mean.
+    let alone: Vec<Vec<([u64; 3], DVec3)>> = labels
+        .iter()
+        .map(|m| {
+            let o = meshsmooth_core::run(m, &params, &NoProgress, &cancel).unwrap();
+            by_input_position(m.positions(), &o.positions)
+        })
+        .collect();
+    let (mut squares, mut wall_vertices) = (0.0, 0);
+    for (p, q) in mesh.positions().iter().zip(&out.positions) {
+        let key = p.to_array().map(f64::to_bits);
+        let found: Vec<DVec3> = alone
+            .iter()
+            .filter_map(|t| t.binary_search_by_key(&key, |x| x.0).ok().map(|i| t[i].1))
+            .collect();
+        if found.len() == 2 {
+            wall_vertices += 1;
+        }
+        let expected = found.iter().sum::<DVec3>() / found.len() as f64;
+        squares += q.distance_squared(expected);
+    }
+    assert!(wall_vertices > 0);
+    let rms = (squares / mesh.num_vertices() as f64).sqrt();
+    assert!(rms < 0.02, "{rms} voxel from the labels' own results");
+}

@@ -158,19 +158,6 @@ fn instant_of(at: SystemTime) -> Instant {
     Instant::now().checked_sub(ago).unwrap_or_else(Instant::now)
 }
 
-fn stage_named(name: &str) -> Option<Stage> {
-    [
-        Stage::Analyse,
-        Stage::Initial,
-        Stage::Label,
-        Stage::Adaptive,
-        Stage::Quality,
-        Stage::Report,
-    ]
-    .into_iter()
-    .find(|s| s.name() == name)
-}
-
 fn hook_name(hook: Option<TestHook>) -> Option<String> {
     hook.map(|h| match h {
         TestHook::Panic => "panic".to_owned(),
@@ -939,7 +926,7 @@ fn snapshot(id: Uuid, f: &HashMap<String, String>) -> Option<Job> {
             JobState::Running {
                 started,
                 started_at,
-                stage: f.get("stage").and_then(|s| stage_named(s)),
+                stage: f.get("stage").and_then(|s| Stage::named(s)),
                 fraction: f
                     .get("fraction")
                     .and_then(|v| v.parse().ok())

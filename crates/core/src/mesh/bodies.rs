@@ -39,7 +39,7 @@ use rayon::prelude::*;
 /// give an edge four faces, two masks each touching itself along the edge
 /// eight. An edge with more joins none of its faces (they join their
 /// sheets elsewhere or stay apart), which bounds the work per edge.
-const MAX_SORTED_FACES: usize = 16;
+pub(super) const MAX_SORTED_FACES: usize = 16;
 
 /// Most sheets at one vertex that are sorted into sides; a vertex with
 /// more keeps them on one side (it stays joined), which bounds the work
@@ -53,7 +53,7 @@ const PARTNER_CHECKS: usize = 64;
 
 /// Angles about an edge closer than this (radians) are one: coincident
 /// faces, the wall's two sides, differ only by rounding.
-const SAME_ANGLE: f64 = 1e-9;
+pub(super) const SAME_ANGLE: f64 = 1e-9;
 
 /// Faces or vertices per parallel task: enough to outweigh the task's
 /// cost.
@@ -435,22 +435,25 @@ enum Around {
 
 /// A face at an edge: which way it passes the edge (`true`: from the
 /// edge's first vertex to its second) and the angle about the edge at
-/// which it leaves it.
+/// which it leaves it. A face passing the edge forward has its outward
+/// normal a quarter turn ahead of its wing.
 #[derive(Clone, Copy)]
-struct Wing {
-    face: u32,
-    forward: bool,
-    angle: f64,
+pub(super) struct Wing {
+    pub face: u32,
+    pub forward: bool,
+    pub angle: f64,
 }
 
-/// The mutual choices of the faces around edge `[a, b]` (module docs),
-/// and the pairs of coincident faces.
-fn pair_around(mesh: &Mesh, [a, b]: [u32; 2], faces: &[u32]) -> Vec<Around> {
+/// The faces `faces` at edge `[a, b]` sorted by the angle about the edge
+/// at which each leaves it (ties by face number); `None` when the edge has
+/// no length, a face lies in its line, or a face passes it other than
+/// once (that face left out).
+pub(super) fn sorted_wings(mesh: &Mesh, [a, b]: [u32; 2], faces: &[u32]) -> Option<Vec<Wing>> {
     let p = mesh.positions();
     let (pa, pb) = (p[a as usize], p[b as usize]);
     let axis = (pb - pa).normalize_or_zero();
     if axis == DVec3::ZERO {
-        return Vec::new();
+        return None;
     }
     let mut across: Option<(DVec3, DVec3)> = None;
     let mut wings: Vec<Wing> = Vec::with_capacity(faces.len());
@@ -465,7 +468,7 @@ fn pair_around(mesh: &Mesh, [a, b]: [u32; 2], faces: &[u32]) -> Vec<Around> {
             (x, axis.cross(x))
         });
         if x == DVec3::ZERO {
-            return Vec::new();
+            return None;
         }
         wings.push(Wing {
             face: f,
@@ -474,6 +477,15 @@ fn pair_around(mesh: &Mesh, [a, b]: [u32; 2], faces: &[u32]) -> Vec<Around> {
         });
     }
     wings.sort_by(|s, t| s.angle.total_cmp(&t.angle).then(s.face.cmp(&t.face)));
+    Some(wings)
+}
+
+/// The mutual choices of the faces around edge `[a, b]` (module docs),
+/// and the pairs of coincident faces.
+fn pair_around(mesh: &Mesh, edge: [u32; 2], faces: &[u32]) -> Vec<Around> {
+    let Some(wings) = sorted_wings(mesh, edge, faces) else {
+        return Vec::new();
+    };
     // Groups of coincident faces, in angle order (the last group may wrap
     // round to the first).
     let mut group = vec![0usize; wings.len()];
@@ -561,18 +573,18 @@ fn wing_of(face: &[u32], a: u32, b: u32) -> Option<(bool, u32)> {
 }
 
 /// Union-find over `0..n` with path halving.
-struct UnionFind {
+pub(super) struct UnionFind {
     parent: Vec<u32>,
 }
 
 impl UnionFind {
-    fn new(n: usize) -> Self {
+    pub(super) fn new(n: usize) -> Self {
         UnionFind {
             parent: (0..n as u32).collect(),
         }
     }
 
-    fn find(&mut self, mut i: usize) -> usize {
+    pub(super) fn find(&mut self, mut i: usize) -> usize {
         while self.parent[i] as usize != i {
             self.parent[i] = self.parent[self.parent[i] as usize];
             i = self.parent[i] as usize;
@@ -580,7 +592,7 @@ impl UnionFind {
         i
     }
 
-    fn union(&mut self, a: usize, b: usize) {
+    pub(super) fn union(&mut self, a: usize, b: usize) {
         let (a, b) = (self.find(a), self.find(b));
         if a != b {
             self.parent[a.max(b)] = a.min(b) as u32;

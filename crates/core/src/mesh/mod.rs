@@ -8,6 +8,7 @@ mod bodies;
 pub(crate) mod lattice;
 mod orientation;
 mod paired;
+mod regions;
 mod ring;
 mod topology;
 #[cfg(test)]
@@ -16,6 +17,7 @@ pub(crate) use topology::tests::{grid as test_grid, unit_cube as test_unit_cube}
 pub use bodies::{TouchingBodies, body_ids, touching_bodies};
 pub use orientation::{Orientation, orientation};
 pub use paired::{PairedFaces, paired_voxel_faces};
+pub use regions::{OUTSIDE, Regions, regions};
 pub use ring::RingWalker;
 pub(crate) use topology::has_repeated_corner;
 pub use topology::{Topology, VertexKind};

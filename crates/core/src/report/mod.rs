@@ -22,7 +22,7 @@ use sha2::{Digest, Sha256};
 /// Version of the report's JSON schema: the major number changes when a
 /// field is removed or changes meaning, the minor number when fields are
 /// added.
-pub const SCHEMA_VERSION: &str = "2.7";
+pub const SCHEMA_VERSION: &str = "2.8";
 
 /// Width of one angle-histogram bin, in degrees.
 pub const ANGLE_BIN_DEG: f64 = 5.0;
@@ -60,6 +60,17 @@ pub struct QualityReport {
     /// walls, in model units; absent otherwise. Since schema 2.7.
     #[serde(default)]
     pub walls_parted: Option<Displacement>,
+    /// Where the mesh is a complex of regions (`mesh.regions`): how far
+    /// each wall vertex's copies, one per region around it, lay from their
+    /// mean, which the output takes, over the copies, in model units;
+    /// absent otherwise. Since schema 2.8.
+    #[serde(default)]
+    pub walls_joined: Option<Displacement>,
+    /// Where the mesh is a complex of regions: what the quality fixes did
+    /// on the complex once its walls were joined (`quality_fixes` are the
+    /// regions' runs'); absent otherwise. Since schema 2.8.
+    #[serde(default)]
+    pub joined_fixes: Option<QualityFixStats>,
 }
 
 impl QualityReport {
@@ -77,6 +88,8 @@ impl QualityReport {
             reproducibility,
             warnings: Vec::new(),
             walls_parted: None,
+            walls_joined: None,
+            joined_fixes: None,
         }
     }
 }
@@ -132,6 +145,8 @@ pub struct StageMeasures {
     /// the same in the input.
     pub inverted_faces: u64,
     /// Enclosed volume; absent unless the mesh is closed (no boundary edge).
+    /// Of a multi-label complex (`mesh.regions`), the sum of its regions'
+    /// volumes, each wall counted for both of its regions.
     pub volume: Option<VolumeMeasure>,
     /// How far vertices moved from the input.
     pub displacement: Displacement,
@@ -295,6 +310,17 @@ pub struct MeshStatistics {
     /// once. Since schema 2.7.
     #[serde(default)]
     pub shared_faces: u64,
+    /// Regions of a multi-label complex: closed spaces the surface bounds
+    /// whose walls between two of them are written once (VTK's surface
+    /// nets over a label map). Each is smoothed as its own closed surface
+    /// and the walls joined again; 0 when the mesh is no such complex.
+    /// Since schema 2.8.
+    #[serde(default)]
+    pub regions: u64,
+    /// Faces with a region on both sides: the walls the regions share.
+    /// Since schema 2.8.
+    #[serde(default)]
+    pub region_walls: u64,
 }
 
 impl MeshStatistics {
