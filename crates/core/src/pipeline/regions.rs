@@ -32,17 +32,32 @@ pub(super) struct Split {
     shared: Vec<(u32, u32)>,
 }
 
+/// The copies of a face with region `sides`: for each side with a region,
+/// that region and whether the face is turned over for it; a face with no
+/// region on either side (an open sheet of the complex) is copied once, as
+/// it is, for the sheets' own part `open`.
+fn face_copies(sides: [u32; 2], open: u32) -> [Option<(u32, bool)>; 2] {
+    match sides {
+        [OUTSIDE, OUTSIDE] => [Some((open, false)), None],
+        [behind, front] => [
+            (behind != OUTSIDE).then_some((behind, false)),
+            (front != OUTSIDE).then_some((front, true)),
+        ],
+    }
+}
+
 /// Each region's faces, wound so that the region lies behind them (the
-/// side in front of a face turns it over), on a copy per region of each
-/// vertex; `None` when the copies would pass the mesh's size limits.
+/// side in front of a face turns it over about its first corner), on a
+/// copy per region of each vertex, and the faces of no region as they are
+/// on copies of their own; `None` when the copies would pass the mesh's
+/// size limits.
 pub(super) fn split(mesh: &Mesh, regions: &Regions) -> Option<Split> {
     let n = mesh.num_vertices();
+    let open = regions.count as u32;
     let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(mesh.face_vertices().len());
     for (f, face) in mesh.faces().enumerate() {
-        for &r in &regions.sides[f] {
-            if r != OUTSIDE {
-                pairs.extend(face.iter().map(|&v| (v, r)));
-            }
+        for (r, _) in face_copies(regions.sides[f], open).into_iter().flatten() {
+            pairs.extend(face.iter().map(|&v| (v, r)));
         }
     }
     pairs.sort_unstable();
@@ -67,13 +82,15 @@ pub(super) fn split(mesh: &Mesh, regions: &Regions) -> Option<Split> {
     let mut shared = Vec::new();
     for (f, face) in mesh.faces().enumerate() {
         let mut made = [u32::MAX; 2];
-        for (k, &r) in regions.sides[f].iter().enumerate() {
-            if r == OUTSIDE {
+        for (k, side) in face_copies(regions.sides[f], open).into_iter().enumerate() {
+            let Some((r, turned)) = side else {
                 continue;
-            }
+            };
             let mut copied: Vec<u32> = face.iter().map(|&v| copy(v, r)).collect();
-            if k == 1 {
-                copied.reverse();
+            if turned {
+                // Turned over from its first corner, so that a quad keeps
+                // the diagonal it is split along.
+                copied[1..].reverse();
             }
             made[k] = faces.len() as u32;
             faces.push(copied);
@@ -100,8 +117,8 @@ pub(super) struct Context<'a> {
     pub cancel: &'a AtomicBool,
 }
 
-/// Smooths the complex `mesh` (topology `topo`, `report` its analysis)
-/// region by region (module docs), its regions' surfaces `split`.
+/// Smooths the complex `mesh` (topology `topo`) region by region (module
+/// docs): `regions` and `split` of it ([`split`]), `report` its analysis.
 pub(super) fn run(
     mesh: &Mesh,
     topo: &Topology,
@@ -162,6 +179,15 @@ pub(super) fn run(
     // The complex's report: its own statistics, input and final measures;
     // the regions' runs' summary, intermediate stages and fixes.
     let inner = smoothed.report;
+    let input_curvature = super::stage_curvature(mesh, topo, input, params);
+    report.stages.input = Some(measure_stage(
+        mesh,
+        topo,
+        input,
+        input,
+        Some(&input_curvature),
+        params.quality.short_edge_fraction,
+    ));
     report.stages.initial = inner.stages.initial;
     report.stages.adaptive = inner.stages.adaptive;
     report.wang_yu = inner.wang_yu;
