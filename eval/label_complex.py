@@ -8,9 +8,10 @@ the WM crop's mask (1) and the crop less its outer 4 voxels and the WM (2).
     python3 eval/label_complex.py [--data DIR] [--binary PATH] [--map gm|wm] [--kinds quads,triangles] [--no-peers]
 
 Each complex is written as OBJ and smoothed at the defaults. Columns: the
-truth RMS in mm of the vertices of the faces that bound label 1
-(`meshmetrics.Truth`, label 1's map's threshold surface; on the WM crop
-those at least 3 voxels inside it), then
+truth RMS in mm (`meshmetrics.Truth`, label 1's map's threshold surface)
+of the vertices of the faces that bound label 1 and over those faces'
+surface (`meshmetrics.surface_rms`), on the WM crop those at least 3
+voxels inside it; then
 flipped faces / twisted quads / triangle-split angles under 20 degrees /
 the smallest / the largest move in voxels, and the report's `regions`
 and `walls_joined` (mean / largest distance, in mm, of a wall vertex's
@@ -68,15 +69,17 @@ def complex_mesh(lab, affine, mesh_type):
         faces.append(list(cells[i + 1 : i + 1 + n]))
         i += n + 1
     verts = np.asarray(poly.points, dtype=np.float64) @ affine[:3, :3].T + affine[:3, 3]
-    first = np.unique(np.concatenate([f for f, b in zip(faces, labels) if 1 in b]))
-    return verts, faces, first
+    first_faces = [f for f, b in zip(faces, labels) if 1 in b]
+    first = np.unique(np.concatenate(first_faces))
+    return verts, faces, first, mm.triangles(first_faces)
 
 
-def row(name, truth, grey, verts, faces, out, extra="", voxel=2.0):
+def row(name, truth, grey, verts, faces, out, extra="", voxel=2.0, tris=None, margin=None):
     d = truth.distances(out[grey])
     q = mm.quality(verts, faces, out)
+    surface = mm.surface_rms(truth, out, tris, margin)
     print(
-        f"| {name} | {np.sqrt(np.mean(d**2)):.4f} | {q['flipped']} / {q['twisted']} / {q['angles_lt20']} / "
+        f"| {name} | {np.sqrt(np.mean(d**2)):.4f} / {surface:.4f} | {q['flipped']} / {q['twisted']} / {q['angles_lt20']} / "
         f"{q['min_angle']:.1f} / {q['max_move'] / voxel:.2f} | {extra} |",
         flush=True,
     )
@@ -101,13 +104,13 @@ def main():
     # voxels inside the crop: its walls are where the crop cut the mask.
     margin = 3 if args.map == "wm" else None
     for kind in args.kinds.split(","):
-        verts, faces, grey = complex_mesh(lab, affine, kind)
+        verts, faces, grey, tris = complex_mesh(lab, affine, kind)
         if margin is not None:
             grey = grey[truth.inside_crop(verts[grey], margin)]
         print(f"\n{kind}: {len(verts)} vertices, {len(faces)} faces, {len(grey)} bound label 1\n")
-        print("| tool | label 1's truth RMS | flipped / twisted / angles < 20 / smallest / largest move | regions, walls joined |")
+        print("| tool | label 1's truth RMS, vertices / surface | flipped / twisted / angles < 20 / smallest / largest move | regions, walls joined |")
         print("|---|---|---|---|")
-        row("input", truth, grey, verts, faces, verts, voxel=voxel)
+        row("input", truth, grey, verts, faces, verts, voxel=voxel, tris=tris, margin=margin)
         with tempfile.TemporaryDirectory() as d:
             src, out, rep = (os.path.join(d, n) for n in ("in.obj", "out.obj", "r.json"))
             mm.write_obj(src, verts, faces)
@@ -117,13 +120,13 @@ def main():
             extra = f"{report['mesh'].get('regions', '-')}, " + (
                 f"{joined['mean']:.3f} / {joined['max']:.3f}" if joined else "-"
             )
-            row("meshsmooth", truth, grey, verts, faces, mm.read_obj(out)[0], extra, voxel)
+            row("meshsmooth", truth, grey, verts, faces, mm.read_obj(out)[0], extra, voxel, tris, margin)
         if args.no_peers:
             continue
         for name, run in cp.defaults(args.binary).items():
             if name.startswith("meshsmooth"):
                 continue
-            row(name, truth, grey, verts, faces, run(verts, faces), voxel=voxel)
+            row(name, truth, grey, verts, faces, run(verts, faces), voxel=voxel, tris=tris, margin=margin)
         best = None
         for name, run in cp.sweep().items():
             out = run(verts, faces)
@@ -131,7 +134,7 @@ def main():
             r = float(np.sqrt(np.mean(d**2)))
             if best is None or r < best[0]:
                 best = (r, name, out)
-        row(f"best peer setting: {best[1]}", truth, grey, verts, faces, best[2], voxel=voxel)
+        row(f"best peer setting: {best[1]}", truth, grey, verts, faces, best[2], voxel=voxel, tris=tris, margin=margin)
 
 
 if __name__ == "__main__":

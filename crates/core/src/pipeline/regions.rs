@@ -78,7 +78,8 @@ pub(super) fn split(mesh: &Mesh, regions: &Regions) -> Option<Split> {
         .iter()
         .map(|&(v, _)| mesh.positions()[v as usize])
         .collect();
-    let mut faces: Vec<Vec<u32>> = Vec::new();
+    let mut offsets: Vec<u32> = vec![0];
+    let mut corners: Vec<u32> = Vec::with_capacity(pairs.len());
     let mut shared = Vec::new();
     for (f, face) in mesh.faces().enumerate() {
         let mut made = [u32::MAX; 2];
@@ -86,20 +87,21 @@ pub(super) fn split(mesh: &Mesh, regions: &Regions) -> Option<Split> {
             let Some((r, turned)) = side else {
                 continue;
             };
-            let mut copied: Vec<u32> = face.iter().map(|&v| copy(v, r)).collect();
+            let start = corners.len();
+            corners.extend(face.iter().map(|&v| copy(v, r)));
             if turned {
-                // Turned over from its first corner, so that a quad keeps
+                // Turned over about its first corner, so that a quad keeps
                 // the diagonal it is split along.
-                copied[1..].reverse();
+                corners[start + 1..].reverse();
             }
-            made[k] = faces.len() as u32;
-            faces.push(copied);
+            made[k] = (offsets.len() - 1) as u32;
+            offsets.push(u32::try_from(corners.len()).ok()?);
         }
         if made[0] != u32::MAX && made[1] != u32::MAX {
             shared.push((made[0], made[1]));
         }
     }
-    let mesh = Mesh::from_polygons(positions, &faces).ok()?;
+    let mesh = Mesh::new(positions, offsets, corners).ok()?;
     Some(Split {
         mesh,
         copies,
@@ -140,67 +142,67 @@ pub(super) fn run(
         body_ids(&split.mesh, &Topology::build(&split.mesh), &split.shared).0
     });
     let smoothed = run_inner(&split.mesh, Some(&bodies), params, progress, cancel, false)?;
-    let t = Instant::now();
     let input = mesh.positions();
-    let copies = |v: usize| split.copies[v] as usize..split.copies[v + 1] as usize;
-    let mut positions: Vec<DVec3> = (0..mesh.num_vertices())
-        .map(|v| {
-            let range = copies(v);
-            if range.is_empty() {
-                return input[v];
-            }
-            let k = range.len() as f64;
-            range.map(|c| smoothed.positions[c]).sum::<DVec3>() / k
-        })
-        .collect();
-    let joined = wall_spread(&positions, &smoothed.positions, copies);
-    // The bound of the regions' runs, widened for the fixes: a voxel
-    // complex written as triangles is bounded on its voxel faces.
-    let bound = params.max_displacement.map(|d| {
-        let bound = match paired_voxel_faces(mesh, topo) {
-            Some(p) => FidelityBound::new(&p.mesh, &p.topo, d),
-            None => FidelityBound::new(mesh, topo, d),
-        };
-        bound.widened(QUALITY_ROOM)
+    let offsets = &split.copies;
+    let (positions, joined, fixes) = timings.time(Stage::Quality, || {
+        let mut positions: Vec<DVec3> = (0..mesh.num_vertices())
+            .map(|v| {
+                let own = &smoothed.positions[offsets[v] as usize..offsets[v + 1] as usize];
+                if own.is_empty() {
+                    return input[v];
+                }
+                own.iter().sum::<DVec3>() / own.len() as f64
+            })
+            .collect();
+        let joined = wall_spread(&positions, &smoothed.positions, offsets);
+        // The bound of the regions' runs, widened for the fixes: a voxel
+        // complex written as triangles is bounded on its voxel faces.
+        let bound = params.max_displacement.map(|d| {
+            let bound = match paired_voxel_faces(mesh, topo) {
+                Some(p) => FidelityBound::new(&p.mesh, &p.topo, d),
+                None => FidelityBound::new(mesh, topo, d),
+            };
+            bound.widened(QUALITY_ROOM)
+        });
+        let fixes = improve(
+            mesh,
+            topo,
+            &mut positions,
+            input,
+            bound.as_ref(),
+            &params.quality,
+            params.min_normal_cos(),
+        );
+        Fidelity::new(bound.as_ref(), input).apply(&mut positions);
+        (positions, joined, fixes)
     });
-    let fixes = improve(
-        mesh,
-        topo,
-        &mut positions,
-        input,
-        bound.as_ref(),
-        &params.quality,
-        params.min_normal_cos(),
-    );
-    Fidelity::new(bound.as_ref(), input).apply(&mut positions);
-    let curvature = super::stage_curvature(mesh, topo, &positions, params);
-    let join_ms = ms(t);
 
     // The complex's report: its own statistics, input and final measures;
     // the regions' runs' summary, intermediate stages and fixes.
     let inner = smoothed.report;
-    let input_curvature = super::stage_curvature(mesh, topo, input, params);
-    report.stages.input = Some(measure_stage(
-        mesh,
-        topo,
-        input,
-        input,
-        Some(&input_curvature),
-        params.quality.short_edge_fraction,
-    ));
+    let curvature = timings.time(Stage::Report, || {
+        let measure = |at: &[DVec3]| {
+            let curvature = super::stage_curvature(mesh, topo, at, params);
+            let stage = measure_stage(
+                mesh,
+                topo,
+                at,
+                input,
+                Some(&curvature),
+                params.quality.short_edge_fraction,
+            );
+            (stage, curvature)
+        };
+        report.stages.input = Some(measure(input).0);
+        let (last, curvature) = measure(&positions);
+        report.stages.final_stage = Some(last);
+        curvature
+    });
     report.stages.initial = inner.stages.initial;
     report.stages.adaptive = inner.stages.adaptive;
     report.wang_yu = inner.wang_yu;
     report.quality_fixes = inner.quality_fixes;
     report.warnings = inner.warnings;
-    report.stages.final_stage = Some(measure_stage(
-        mesh,
-        topo,
-        &positions,
-        input,
-        Some(&curvature),
-        params.quality.short_edge_fraction,
-    ));
     // A complex's volume is its regions': one wall face bounds two.
     let input_volume = regions.volume(mesh, input);
     let volume = |positions: &[DVec3]| {
@@ -231,7 +233,6 @@ pub(super) fn run(
     ));
     super::final_warnings(params, &mut report, true);
     timings.absorb(&inner.timings);
-    timings.add(Stage::Quality, join_ms);
     report.timings = timings.into_report();
     report.total_ms = ms(start);
     let label: Vec<u8> = (0..mesh.num_vertices())
@@ -239,7 +240,7 @@ pub(super) fn run(
             smoothed
                 .per_vertex
                 .label
-                .get(split.copies[v] as usize)
+                .get(offsets[v] as usize)
                 .copied()
                 .unwrap_or_default()
         })
@@ -252,20 +253,17 @@ pub(super) fn run(
 }
 
 /// How far the copies of the vertices with more than one (the walls')
-/// lay from their mean, over the copies.
-fn wall_spread<R: Iterator<Item = usize> + ExactSizeIterator>(
-    joined: &[DVec3],
-    copies: &[DVec3],
-    range: impl Fn(usize) -> R,
-) -> Displacement {
+/// lay from their mean `joined`, over the copies: vertex `v`'s copies are
+/// `copies[offsets[v]..offsets[v + 1]]`.
+fn wall_spread(joined: &[DVec3], copies: &[DVec3], offsets: &[u32]) -> Displacement {
     let (mut sum, mut sum2, mut max, mut count) = (0.0, 0.0, 0.0f64, 0usize);
     for (v, &p) in joined.iter().enumerate() {
-        let r = range(v);
-        if r.len() < 2 {
+        let own = &copies[offsets[v] as usize..offsets[v + 1] as usize];
+        if own.len() < 2 {
             continue;
         }
-        for c in r {
-            let d = copies[c].distance(p);
+        for c in own {
+            let d = c.distance(p);
             sum += d;
             sum2 += d * d;
             max = max.max(d);
