@@ -13,12 +13,14 @@ of the vertices of the faces that bound label 1 and over those faces'
 surface (`meshmetrics.surface_rms`), on the WM crop those at least 3
 voxels inside it; then
 flipped faces / twisted quads / triangle-split angles under 20 degrees /
-the smallest / the largest move in voxels, and the report's `regions`
+the smallest / the largest move in voxels, each label's volume change
+(its faces wound outward from it), and the report's `regions`
 and `walls_joined` (mean / largest distance, in mm, of a wall vertex's
 copies from their mean). The peers run on the same complex (its faces
 split into triangles), every setting of `compare_peers.sweep()`: the
-setting closest to the truth is printed with its quality, and the
-settings of `compare_peers.defaults()` beside it.
+settings closest to the truth at the vertices and over the surface are
+printed with their quality, and the settings of
+`compare_peers.defaults()` beside them.
 """
 
 from __future__ import annotations
@@ -55,8 +57,9 @@ def wm_labels(data):
 
 
 def complex_mesh(lab, affine, mesh_type):
-    """The label map's surface nets, walls once (world positions, faces),
-    and the vertices of the faces that bound label 1."""
+    """The label map's surface nets, walls once (world positions, faces);
+    the vertices and the triangles of the faces that bound label 1; and
+    each label's triangles, wound outward from it."""
     import pyvista as pv
 
     image = pv.ImageData(dimensions=lab.shape)
@@ -68,19 +71,38 @@ def complex_mesh(lab, affine, mesh_type):
         n = cells[i]
         faces.append(list(cells[i + 1 : i + 1 + n]))
         i += n + 1
-    verts = np.asarray(poly.points, dtype=np.float64) @ affine[:3, :3].T + affine[:3, 3]
+    ijk = np.asarray(poly.points, dtype=np.float64)
+    verts = ijk @ affine[:3, :3].T + affine[:3, 3]
     first_faces = [f for f, b in zip(faces, labels) if 1 in b]
     first = np.unique(np.concatenate(first_faces))
-    return verts, faces, first, mm.triangles(first_faces)
+    # Each label's faces wound outward from it: the voxel half a voxel in
+    # front of a face (surface nets put faces between voxel centres).
+    padded = np.pad(lab, 1)
+    bounds = {}
+    for value in (1, 2):
+        own = []
+        for f, b in zip(faces, labels):
+            if value not in b:
+                continue
+            c = ijk[f]
+            n = np.cross(c[1] - c[0], c[2] - c[0])
+            p = np.rint(c.mean(axis=0) + 0.5 * n / np.linalg.norm(n)).astype(int) + 1
+            own.append(f[::-1] if padded[tuple(p)] == value else f)
+        bounds[value] = mm.triangles(own)
+    return verts, faces, first, mm.triangles(first_faces), bounds
+
+
+BOUNDS = {}
 
 
 def row(name, truth, grey, verts, faces, out, extra="", voxel=2.0, tris=None, margin=None):
     d = truth.distances(out[grey])
     q = mm.quality(verts, faces, out)
     surface = mm.surface_rms(truth, out, tris, margin)
+    volumes = " / ".join(f"{100 * mm.volume_change(verts, t, out):+.2f}%" for t in BOUNDS.values())
     print(
         f"| {name} | {np.sqrt(np.mean(d**2)):.4f} / {surface:.4f} | {q['flipped']} / {q['twisted']} / {q['angles_lt20']} / "
-        f"{q['min_angle']:.1f} / {q['max_move'] / voxel:.2f} | {extra} |",
+        f"{q['min_angle']:.1f} / {q['max_move'] / voxel:.2f} | {volumes} | {extra} |",
         flush=True,
     )
 
@@ -104,12 +126,17 @@ def main():
     # voxels inside the crop: its walls are where the crop cut the mask.
     margin = 3 if args.map == "wm" else None
     for kind in args.kinds.split(","):
-        verts, faces, grey, tris = complex_mesh(lab, affine, kind)
+        verts, faces, grey, tris, bounds = complex_mesh(lab, affine, kind)
+        BOUNDS.clear()
+        BOUNDS.update(bounds)
         if margin is not None:
             grey = grey[truth.inside_crop(verts[grey], margin)]
         print(f"\n{kind}: {len(verts)} vertices, {len(faces)} faces, {len(grey)} bound label 1\n")
-        print("| tool | label 1's truth RMS, vertices / surface | flipped / twisted / angles < 20 / smallest / largest move | regions, walls joined |")
-        print("|---|---|---|---|")
+        print(
+            "| tool | label 1's truth RMS, vertices / surface | flipped / twisted / angles < 20 / smallest / "
+            "largest move | volume change, label 1 / 2 | regions, walls joined |"
+        )
+        print("|---|---|---|---|---|---|")
         row("input", truth, grey, verts, faces, verts, voxel=voxel, tris=tris, margin=margin)
         with tempfile.TemporaryDirectory() as d:
             src, out, rep = (os.path.join(d, n) for n in ("in.obj", "out.obj", "r.json"))
@@ -127,14 +154,28 @@ def main():
             if name.startswith("meshsmooth"):
                 continue
             row(name, truth, grey, verts, faces, run(verts, faces), voxel=voxel, tris=tris, margin=margin)
-        best = None
+        best, best_surface = None, None
         for name, run in cp.sweep().items():
             out = run(verts, faces)
             d = truth.distances(out[grey])
             r = float(np.sqrt(np.mean(d**2)))
             if best is None or r < best[0]:
                 best = (r, name, out)
+            r = mm.surface_rms(truth, out, tris, margin)
+            if best_surface is None or r < best_surface[0]:
+                best_surface = (r, name, out)
         row(f"best peer setting: {best[1]}", truth, grey, verts, faces, best[2], voxel=voxel, tris=tris, margin=margin)
+        row(
+            f"best peer setting over the surface: {best_surface[1]}",
+            truth,
+            grey,
+            verts,
+            faces,
+            best_surface[2],
+            voxel=voxel,
+            tris=tris,
+            margin=margin,
+        )
 
 
 if __name__ == "__main__":

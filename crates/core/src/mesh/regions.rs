@@ -17,11 +17,11 @@
 //! two faces next to each other in that order bound one sector, so the
 //! side of one that faces the other and the side of the other that faces
 //! back lie in the same region (a face passing the edge forward has its
-//! front a quarter turn ahead of its wing). At an open edge the face's two
-//! sides meet round it. The sides so joined, over the whole mesh, are the
-//! surfaces of the regions: a region bounded by one closed surface encloses
-//! a positive volume seen from its own side, the space around a closed
-//! mesh a negative one (as does a cavity seen from the solid around it).
+//! front a quarter turn ahead of its wing). The sides so joined, over the
+//! whole of a closed mesh, are the surfaces of the regions: a region's
+//! outer surface encloses a positive volume seen from its own side, the
+//! space around the mesh a negative one (as does a cavity seen from the
+//! solid around it).
 //! A mask's own surface, however it touches itself along edges, gives each
 //! face one bounded side; a complex gives its walls two.
 
