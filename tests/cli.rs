@@ -739,35 +739,12 @@ fn a_label_complex_is_smoothed_region_by_region_and_reported() {
     // surface nets write a label map: one vertex per position, each wall
     // between two labels written once.
     let dir = scratch("label_complex");
-    let mut index = std::collections::HashMap::new();
-    let mut positions: Vec<glam::DVec3> = Vec::new();
-    let mut seen = std::collections::HashSet::new();
-    let mut all: Vec<Vec<u32>> = Vec::new();
-    for label in 0..3 {
-        let mask =
-            shapes::VoxelMask::from_fn(glam::IVec3::ZERO, [6, 4, 4], |i, _, _| i / 2 == label);
-        let mesh = shapes::voxel_boundary_mesh(&mask);
-        for face in faces(&mesh) {
-            let face: Vec<u32> = face
-                .iter()
-                .map(|&v| {
-                    let p = mesh.positions()[v as usize];
-                    *index
-                        .entry(p.to_array().map(f64::to_bits))
-                        .or_insert_with(|| {
-                            positions.push(p);
-                            positions.len() as u32 - 1
-                        })
-                })
-                .collect();
-            let mut key = face.clone();
-            key.sort_unstable();
-            if seen.insert(key) {
-                all.push(face);
-            }
-        }
-    }
-    let complex = Mesh::from_polygons(positions, &all).unwrap();
+    let masks: Vec<_> = (0..3)
+        .map(|label| {
+            shapes::VoxelMask::from_fn(glam::IVec3::ZERO, [6, 4, 4], |i, _, _| i / 2 == label)
+        })
+        .collect();
+    let complex = shapes::label_complex(&masks);
     let mut bytes = Vec::new();
     io::obj::write_obj_plain(&complex, complex.positions(), &mut bytes).unwrap();
     let input = dir.join("labels.obj");

@@ -123,3 +123,27 @@ async fn cli_and_service_give_the_same_mesh_and_report() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[tokio::test]
+async fn a_label_complex_smooths_alike_through_the_cli_and_the_service() {
+    // Three labels of a block, their walls written once (VTK's surface
+    // nets): smoothed region by region either way.
+    let server = Server::start(&[]);
+    let dir = std::env::temp_dir().join(format!("meshsmooth-complex-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let masks: Vec<_> = (0..3)
+        .map(|label| {
+            shapes::VoxelMask::from_fn(glam::IVec3::ZERO, [9, 6, 6], |i, _, _| i / 3 == label)
+        })
+        .collect();
+    let complex = shapes::label_complex(&masks);
+    let mut bytes = Vec::new();
+    io::obj::write_obj_plain(&complex, complex.positions(), &mut bytes).unwrap();
+    let (cli_mesh, cli_report) = cli(&dir, Format::Obj, &bytes, "{}");
+    let (http_mesh, http_report) = service(&server, Format::Obj, &bytes, "{}").await;
+    assert!(cli_mesh == http_mesh, "the meshes differ");
+    assert_eq!(http_report["mesh"]["regions"], 3);
+    assert_eq!(http_report["mesh"]["region_walls"], 72);
+    assert_eq!(without_timings(cli_report), without_timings(http_report));
+    let _ = std::fs::remove_dir_all(&dir);
+}

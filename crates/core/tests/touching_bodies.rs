@@ -5,7 +5,7 @@
 use glam::{DVec3, IVec3};
 use meshsmooth_core::io::{self, Format, ReadLimits, ReadOptions};
 use meshsmooth_core::job::{self, Request};
-use meshsmooth_core::shapes::{VoxelMask, voxel_boundary_mesh};
+use meshsmooth_core::shapes::{VoxelMask, label_complex, voxel_boundary_mesh};
 use meshsmooth_core::{Mesh, NoProgress, Params};
 use std::sync::atomic::AtomicBool;
 
@@ -307,44 +307,13 @@ fn the_meshes_of_a_gltf_smooth_each_as_alone() {
     }
 }
 
-/// `labels` as one complex: their faces on one vertex per position, each
-/// wall the labels share written once (wound for the first label).
-fn complex(labels: &[Mesh]) -> Mesh {
-    let mut index: std::collections::HashMap<[u64; 3], u32> = Default::default();
-    let mut positions = Vec::new();
-    let mut seen = std::collections::HashSet::new();
-    let mut faces: Vec<Vec<u32>> = Vec::new();
-    for m in labels {
-        for face in m.faces() {
-            let face: Vec<u32> = face
-                .iter()
-                .map(|&v| {
-                    let p = m.positions()[v as usize];
-                    *index
-                        .entry(p.to_array().map(f64::to_bits))
-                        .or_insert_with(|| {
-                            positions.push(p);
-                            (positions.len() - 1) as u32
-                        })
-                })
-                .collect();
-            let mut key = face.clone();
-            key.sort_unstable();
-            if seen.insert(key) {
-                faces.push(face);
-            }
-        }
-    }
-    Mesh::from_polygons(positions, &faces).unwrap()
-}
-
 #[test]
 fn two_labels_as_one_complex_smooth_region_by_region() {
     // The cap and the rest with their wall written once, as VTK's surface
     // nets write a label map: each label is smoothed as its own closed
     // surface and each wall vertex takes the mean of the two.
     let labels = cap_and_rest();
-    let mesh = complex(&labels);
+    let mesh = label_complex(&[half_ball(true, 6), half_ball(false, 6)]);
     let params = Params::default();
     let cancel = AtomicBool::new(false);
     let out = meshsmooth_core::run(&mesh, &params, &NoProgress, &cancel).unwrap();

@@ -550,7 +550,7 @@ fn pair_around(mesh: &Mesh, edge: [u32; 2], faces: &[u32]) -> Vec<Around> {
 /// Which way `face` passes the edge `[a, b]` (`true`: from `a` to `b`)
 /// and its corner after the edge; `None` when it passes it other than
 /// once.
-fn wing_of(face: &[u32], a: u32, b: u32) -> Option<(bool, u32)> {
+pub(super) fn wing_of(face: &[u32], a: u32, b: u32) -> Option<(bool, u32)> {
     let k = face.len();
     let mut found = None;
     for (i, &c) in face.iter().enumerate() {

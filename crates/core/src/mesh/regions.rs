@@ -25,7 +25,7 @@
 //! A mask's own surface, however it touches itself along edges, gives each
 //! face one bounded side; a complex gives its walls two.
 
-use super::bodies::{MAX_SORTED_FACES, SAME_ANGLE, UnionFind, sorted_wings};
+use super::bodies::{MAX_SORTED_FACES, SAME_ANGLE, UnionFind, sorted_wings, wing_of};
 use super::{Mesh, Topology, cone_volume6};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -100,18 +100,25 @@ pub fn regions(mesh: &Mesh, topo: &Topology) -> Option<Regions> {
     if !odd {
         return None;
     }
-    // Per edge, the side pairs that meet in its sectors (side `2 f` behind
-    // face `f`, `2 f + 1` in front); `None` where the edge cannot be read.
-    let links: Vec<Option<Vec<(u32, u32)>>> = (0..edges.len())
+    // The side pairs that meet in the edges' sectors (side `2 f` behind
+    // face `f`, `2 f + 1` in front), a list per parallel task; `None` where
+    // an edge cannot be read. The joins' result does not depend on their
+    // order.
+    let links: Option<Vec<Vec<(u32, u32)>>> = (0..edges.len())
         .into_par_iter()
         .with_min_len(CHUNK)
-        .map(|e| sector_links(mesh, edges[e], topo.edge_faces(e)))
+        .fold(
+            || Some(Vec::new()),
+            |pairs, e| {
+                let mut pairs = pairs?;
+                sector_links(mesh, edges[e], topo.edge_faces(e), &mut pairs)?;
+                Some(pairs)
+            },
+        )
         .collect();
     let mut sides = UnionFind::new(2 * mesh.num_faces());
-    for pairs in links {
-        for (s, t) in pairs? {
-            sides.union(s as usize, t as usize);
-        }
+    for (s, t) in links?.into_iter().flatten() {
+        sides.union(s as usize, t as usize);
     }
     let root: Vec<u32> = (0..2 * mesh.num_faces())
         .map(|s| sides.find(s) as u32)
@@ -164,21 +171,33 @@ pub fn regions(mesh: &Mesh, topo: &Topology) -> Option<Regions> {
     })
 }
 
-/// The side pairs that meet in the sectors around edge `[a, b]` with
-/// `faces` (module docs); `None` when the edge cannot be read.
-fn sector_links(mesh: &Mesh, edge: [u32; 2], faces: &[u32]) -> Option<Vec<(u32, u32)>> {
+/// Appends to `out` the side pairs that meet in the sectors around edge
+/// `edge` with `faces` (module docs); `None` when the edge cannot be read.
+fn sector_links(
+    mesh: &Mesh,
+    edge: [u32; 2],
+    faces: &[u32],
+    out: &mut Vec<(u32, u32)>,
+) -> Option<()> {
     let side = |f: u32, front: bool| 2 * f + u32::from(front);
-    match faces {
-        [] => Some(Vec::new()),
-        [f] => Some(vec![(side(*f, false), side(*f, true))]),
-        _ if faces.len() > MAX_SORTED_FACES => None,
+    match *faces {
+        [] => {}
+        [f] => out.push((side(f, false), side(f, true))),
+        [f, g] => {
+            // Two faces bound the edge's two sectors, whichever way round
+            // they lie.
+            let (f_forward, _) = wing_of(mesh.face(f as usize), edge[0], edge[1])?;
+            let (g_forward, _) = wing_of(mesh.face(g as usize), edge[0], edge[1])?;
+            out.push((side(f, f_forward), side(g, !g_forward)));
+            out.push((side(g, g_forward), side(f, !f_forward)));
+        }
+        _ if faces.len() > MAX_SORTED_FACES => return None,
         _ => {
             let wings = sorted_wings(mesh, edge, faces)?;
             if wings.len() != faces.len() {
                 return None;
             }
             let k = wings.len();
-            let mut pairs = Vec::with_capacity(k);
             for i in 0..k {
                 let (w, u) = (wings[i], wings[(i + 1) % k]);
                 let gap = if i + 1 == k {
@@ -190,11 +209,11 @@ fn sector_links(mesh: &Mesh, edge: [u32; 2], faces: &[u32]) -> Option<Vec<(u32, 
                     return None;
                 }
                 // `w`'s side toward larger angles, `u`'s toward smaller.
-                pairs.push((side(w.face, w.forward), side(u.face, !u.forward)));
+                out.push((side(w.face, w.forward), side(u.face, !u.forward)));
             }
-            Some(pairs)
         }
     }
+    Some(())
 }
 
 /// The corners of the box around `positions`.

@@ -1,7 +1,9 @@
 //! Analytic test shapes (sphere, torus, ellipsoid) with exact distance
 //! functions, and the meshes a segmentation pipeline makes of them: the
-//! welded quad boundary of a binary voxel mask ([`voxel_boundary_mesh`]) and
-//! its marching-cubes triangulation ([`marching_cubes_mesh`]); and, for a
+//! welded quad boundary of a binary voxel mask ([`voxel_boundary_mesh`]),
+//! its marching-cubes triangulation ([`marching_cubes_mesh`]) and the
+//! complex of several labels' boundaries with their walls written once
+//! ([`label_complex`]); and, for a
 //! mesh cut from no grid, a torus tessellated on its own surface
 //! ([`tessellated_torus`], with seeded noise from [`normal_deviate`]) and a
 //! folded sheet tessellated on its own surface ([`tessellated_sine_sheet`]).
@@ -26,7 +28,7 @@ pub use segmentation::{
     placement_families, shell, sphere_pair, tube,
 };
 pub use sheet::{SineSheet, tessellated_sine_sheet};
-pub use voxel::{VOXEL_MARGIN, VoxelMask, voxel_boundary_mesh, voxel_mask};
+pub use voxel::{VOXEL_MARGIN, VoxelMask, label_complex, voxel_boundary_mesh, voxel_mask};
 
 use crate::mesh::Mesh;
 use glam::DVec3;

@@ -411,3 +411,42 @@ fn push_faces(
         }
     }
 }
+
+/// The labels `masks` of one label map as VTK's surface nets write it
+/// with its internal walls: each label's voxel boundary
+/// ([`voxel_boundary_mesh`]) on one vertex per position, each face two
+/// labels share written once (wound outward from the first of them). A
+/// multi-label complex: where a wall meets the outer surface an edge has
+/// three faces.
+///
+/// # Panics
+/// If the mesh would have `u32::MAX` vertices or corners or more.
+pub fn label_complex(masks: &[VoxelMask]) -> Mesh {
+    let mut index: std::collections::HashMap<[u64; 3], u32> = Default::default();
+    let mut positions: Vec<DVec3> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    let mut faces: Vec<Vec<u32>> = Vec::new();
+    for mask in masks {
+        let mesh = voxel_boundary_mesh(mask);
+        for face in mesh.faces() {
+            let face: Vec<u32> = face
+                .iter()
+                .map(|&v| {
+                    let p = mesh.positions()[v as usize];
+                    *index
+                        .entry(p.to_array().map(f64::to_bits))
+                        .or_insert_with(|| {
+                            positions.push(p);
+                            (positions.len() - 1) as u32
+                        })
+                })
+                .collect();
+            let mut key = face.clone();
+            key.sort_unstable();
+            if seen.insert(key) {
+                faces.push(face);
+            }
+        }
+    }
+    Mesh::from_polygons(positions, &faces).expect("a label map's faces are valid polygons")
+}
