@@ -3,9 +3,11 @@ two labels written once, as VTK's surface nets write it
 (`vtkSurfaceNets3D`; pyvista's `contour_labels(boundary_style="all")`).
 The labels are those of `touching_labels.py`: the grey-matter mask of the
 2 mm MNI152 maps (1) and the rest of the brain mask (2); with `--map wm`,
-the WM crop's mask (1) and the crop less its outer 4 voxels and the WM (2).
+the WM crop's mask (1) and the crop less its outer 4 voxels and the WM (2);
+with `--map tissue`, the whole-brain 1 mm maps of `fetch_mni152.py` (run
+it first): grey matter (1) and white matter (2), each `prob > 127.5`.
 
-    python3 eval/label_complex.py [--data DIR] [--binary PATH] [--map gm|wm] [--kinds quads,triangles] [--no-peers]
+    python3 eval/label_complex.py [--data DIR] [--binary PATH] [--map gm|wm|tissue] [--kinds quads,triangles] [--no-peers]
 
 Each complex is written as OBJ and smoothed at the defaults. Columns: the
 truth RMS in mm (`meshmetrics.Truth`, label 1's map's threshold surface)
@@ -54,6 +56,22 @@ def wm_labels(data):
     lab[4:-4, 4:-4, 4:-4] = 2
     lab[mask] = 1
     return lab, wm.affine
+
+
+def tissue_labels():
+    """The whole-brain 1 mm label volume (1: grey matter, 2: white matter,
+    0: the rest), its affine, and the grey-matter map's path."""
+    import nibabel as nib
+
+    gm_path = ROOT / "eval" / ".mni152" / "mni_icbm152_gm_tal_nlin_sym_09a_converted.nii.gz"
+    wm_path = ROOT / "eval" / ".mni152" / "mni_icbm152_wm_tal_nlin_sym_09a_converted.nii.gz"
+    gm = nib.load(str(gm_path))
+    grey = np.asarray(gm.dataobj) > 127.5
+    white = np.asarray(nib.load(str(wm_path)).dataobj) > 127.5
+    lab = np.zeros(grey.shape, np.uint8)
+    lab[white] = 2
+    lab[grey] = 1
+    return lab, gm.affine, gm_path
 
 
 def complex_mesh(lab, affine, mesh_type):
@@ -111,16 +129,19 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "bio"))
     ap.add_argument("--binary", default=str(ROOT / "target" / "release" / "meshsmooth"))
-    ap.add_argument("--map", default="gm", choices=["gm", "wm"])
+    ap.add_argument("--map", default="gm", choices=["gm", "wm", "tissue"])
     ap.add_argument("--kinds", default="quads,triangles")
     ap.add_argument("--no-peers", action="store_true")
     args = ap.parse_args()
     if args.map == "gm":
         truth = mm.Truth(str(Path(args.data) / "mni152_gm_2mm_prob.nii.gz"))
         lab, affine = tl.labels(args.data)
-    else:
+    elif args.map == "wm":
         truth = mm.Truth(str(Path(args.data) / "mni152_wm_crop48_1mm_prob.nii.gz"))
         lab, affine = wm_labels(args.data)
+    else:
+        lab, affine, gm_path = tissue_labels()
+        truth = mm.Truth(str(gm_path))
     voxel = float(abs(affine[0, 0]))
     # The WM crop's figures, as everywhere, over the vertices at least 3
     # voxels inside the crop: its walls are where the crop cut the mask.
