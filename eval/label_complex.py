@@ -84,11 +84,7 @@ def complex_mesh(lab, affine, mesh_type):
     image.point_data["m"] = lab.ravel(order="F")
     poly = image.contour_labels(boundary_style="all", smoothing=False, output_mesh_type=mesh_type)
     labels = np.asarray(poly.cell_data["boundary_labels"])
-    cells, faces, i = np.asarray(poly.faces), [], 0
-    while i < len(cells):
-        n = cells[i]
-        faces.append(list(cells[i + 1 : i + 1 + n]))
-        i += n + 1
+    faces = tl.poly_faces(poly)
     ijk = np.asarray(poly.points, dtype=np.float64)
     verts = ijk @ affine[:3, :3].T + affine[:3, 3]
     first_faces = [f for f, b in zip(faces, labels) if 1 in b]

@@ -66,14 +66,19 @@ def label_meshes(lab, affine, kind):
         else:
             mesh_type = "quads" if kind == "surfnets" else "triangles"
             poly = image.contour_labels(smoothing=False, output_mesh_type=mesh_type)
-        cells, faces, i = np.asarray(poly.faces), [], 0
-        while i < len(cells):
-            n = cells[i]
-            faces.append(list(cells[i + 1 : i + 1 + n]))
-            i += n + 1
         points = np.asarray(poly.points, dtype=np.float64)
-        out.append((points @ affine[:3, :3].T + affine[:3, 3], faces))
+        out.append((points @ affine[:3, :3].T + affine[:3, 3], poly_faces(poly)))
     return out
+
+
+def poly_faces(poly):
+    """A pyvista surface's faces as lists of vertex indices."""
+    cells, faces, i = np.asarray(poly.faces), [], 0
+    while i < len(cells):
+        n = cells[i]
+        faces.append(list(cells[i + 1 : i + 1 + n]))
+        i += n + 1
+    return faces
 
 
 def together(meshes):

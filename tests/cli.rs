@@ -382,6 +382,13 @@ fn read_report(path: &Path) -> Value {
     serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
 }
 
+/// `meshsmooth report INPUT`'s table, the run checked to succeed.
+fn report_table(input: &Path) -> String {
+    let out = meshsmooth(&["report", path_str(input)]);
+    assert_eq!(code(&out), 0, "{}", stderr(&out));
+    String::from_utf8(out.stdout).unwrap()
+}
+
 /// Runs `meshsmooth smooth INPUT -o OUTPUT --report REPORT EXTRA...`,
 /// checks that it succeeds and returns the report.
 fn smooth_with_report(input: &Path, output: &Path, report: &Path, extra: &[&str]) -> Value {
@@ -663,9 +670,7 @@ fn faces_wound_against_their_neighbours_smooth_as_wound_outward() {
     assert_eq!(out_mesh.positions(), smoothed.positions());
     assert_eq!(faces(&out_mesh), turned);
 
-    let out = meshsmooth(&["report", path_str(&input)]);
-    assert_eq!(code(&out), 0, "{}", stderr(&out));
-    let table = String::from_utf8(out.stdout).unwrap();
+    let table = report_table(&input);
     assert!(
         table.contains(&format!(
             "winding          {} faces against their neighbours",
@@ -701,9 +706,7 @@ fn two_labels_in_one_stl_are_told_apart_and_reported() {
     let input = dir.join("labels.stl");
     std::fs::write(&input, &bytes).unwrap();
 
-    let out = meshsmooth(&["report", path_str(&input)]);
-    assert_eq!(code(&out), 0, "{}", stderr(&out));
-    let table = String::from_utf8(out.stdout).unwrap();
+    let table = report_table(&input);
     // The wall is 4 x 4 voxel faces, two triangles each.
     assert!(
         table.contains("bodies           2 touching face to face (32 shared faces)"),
@@ -750,9 +753,7 @@ fn a_label_complex_is_smoothed_region_by_region_and_reported() {
     let input = dir.join("labels.obj");
     std::fs::write(&input, &bytes).unwrap();
 
-    let out = meshsmooth(&["report", path_str(&input)]);
-    assert_eq!(code(&out), 0, "{}", stderr(&out));
-    let table = String::from_utf8(out.stdout).unwrap();
+    let table = report_table(&input);
     // Two walls of 4 x 4 voxel faces.
     assert!(
         table.contains("regions          3 sharing 32 wall faces"),

@@ -17,7 +17,7 @@
 //! are never joined.
 
 use super::IoError;
-use crate::mesh::Mesh;
+use crate::mesh::{Mesh, bounding_box};
 use glam::DVec3;
 use std::collections::HashMap;
 use std::hash::{BuildHasher, Hasher, RandomState};
@@ -265,16 +265,6 @@ fn weld_within(
         map.push(k);
     }
     (map, representatives)
-}
-
-/// Axis-aligned bounding box `(min, max)`; `None` when empty.
-fn bounding_box(positions: &[DVec3]) -> Option<(DVec3, DVec3)> {
-    let first = *positions.first()?;
-    Some(
-        positions
-            .iter()
-            .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p))),
-    )
 }
 
 /// Gives every original vertex the value of its welded vertex:

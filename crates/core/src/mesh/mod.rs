@@ -283,17 +283,36 @@ pub fn signed_volume(mesh: &Mesh, positions: &[DVec3]) -> f64 {
 /// fanned from its first corner: [`signed_volume`]'s term per face.
 #[inline]
 pub(crate) fn cone_volume6(face: &[u32], positions: &[DVec3]) -> f64 {
+    cone_volume6_about(face, positions, DVec3::ZERO)
+}
+
+/// Six times the signed volume of the cone from `apex` over `face`, fanned
+/// from its first corner: an apex near the face keeps the digits that far
+/// coordinates would cancel.
+#[inline]
+pub(crate) fn cone_volume6_about(face: &[u32], positions: &[DVec3], apex: DVec3) -> f64 {
     let Some(&first) = face.first() else {
         return 0.0;
     };
-    let o = positions[first as usize];
+    let o = positions[first as usize] - apex;
     let mut v = 0.0;
     for j in 1..face.len().saturating_sub(1) {
-        let a = positions[face[j] as usize];
-        let b = positions[face[j + 1] as usize];
+        let a = positions[face[j] as usize] - apex;
+        let b = positions[face[j + 1] as usize] - apex;
         v += o.dot(a.cross(b));
     }
     v
+}
+
+/// Axis-aligned bounding box `(min, max)` of `positions`; `None` when
+/// empty.
+pub(crate) fn bounding_box(positions: &[DVec3]) -> Option<(DVec3, DVec3)> {
+    let first = *positions.first()?;
+    Some(
+        positions
+            .iter()
+            .fold((first, first), |(lo, hi), &p| (lo.min(p), hi.max(p))),
+    )
 }
 
 /// `chunk_sum` over faces `0..num_faces` in fixed chunks of 4096, in

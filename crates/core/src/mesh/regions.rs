@@ -26,7 +26,7 @@
 //! face one bounded side; a complex gives its walls two.
 
 use super::bodies::{MAX_SORTED_FACES, SAME_ANGLE, UnionFind, sorted_wings, wing_of};
-use super::{Mesh, Topology, cone_volume6};
+use super::{Mesh, Topology, bounding_box, cone_volume6, cone_volume6_about};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -126,11 +126,11 @@ pub fn regions(mesh: &Mesh, topo: &Topology) -> Option<Regions> {
     // Six times each side surface's volume, from its own side: behind a
     // face the face as written, in front of it the face reversed. About
     // the box's centre, so that far coordinates lose no digits.
-    let (lo, hi) = bounds(mesh.positions());
+    let (lo, hi) = bounding_box(mesh.positions())?;
     let centre = (lo + hi) / 2.0;
     let mut volume6 = vec![0.0f64; root.len()];
     for f in 0..mesh.num_faces() {
-        let v = centred_volume6(mesh.face(f), mesh.positions(), centre);
+        let v = cone_volume6_about(mesh.face(f), mesh.positions(), centre);
         volume6[root[2 * f] as usize] += v;
         volume6[root[2 * f + 1] as usize] -= v;
     }
@@ -181,8 +181,6 @@ fn sector_links(
 ) -> Option<()> {
     let side = |f: u32, front: bool| 2 * f + u32::from(front);
     match *faces {
-        [] => {}
-        [f] => out.push((side(f, false), side(f, true))),
         [f, g] => {
             // Two faces bound the edge's two sectors, whichever way round
             // they lie.
@@ -214,29 +212,6 @@ fn sector_links(
         }
     }
     Some(())
-}
-
-/// The corners of the box around `positions`.
-fn bounds(positions: &[DVec3]) -> (DVec3, DVec3) {
-    positions.iter().fold(
-        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-        |(lo, hi), &p| (lo.min(p), hi.max(p)),
-    )
-}
-
-/// Six times the signed volume of the cone from `centre` over `face`.
-fn centred_volume6(face: &[u32], positions: &[DVec3], centre: DVec3) -> f64 {
-    let Some(&first) = face.first() else {
-        return 0.0;
-    };
-    let o = positions[first as usize] - centre;
-    let mut v = 0.0;
-    for j in 1..face.len().saturating_sub(1) {
-        let a = positions[face[j] as usize] - centre;
-        let b = positions[face[j + 1] as usize] - centre;
-        v += o.dot(a.cross(b));
-    }
-    v
 }
 
 #[cfg(test)]

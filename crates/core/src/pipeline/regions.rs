@@ -15,7 +15,10 @@ use crate::control::{Progress, Stage};
 use crate::mesh::{Mesh, OUTSIDE, Regions, Topology, body_ids, paired_voxel_faces};
 use crate::params::Params;
 use crate::quality::improve;
-use crate::report::{Displacement, QualityReport, VolumeMeasure, measure_stage};
+use crate::report::{
+    CurvatureVariation, Displacement, QualityReport, VolumeMeasure, mean_curvature_variation,
+    measure_stage,
+};
 use crate::smoothing::fidelity::{Fidelity, FidelityBound};
 use glam::DVec3;
 use std::sync::atomic::AtomicBool;
@@ -34,8 +37,9 @@ pub(super) struct Split {
 
 /// The copies of a face with region `sides`: for each side with a region,
 /// that region and whether the face is turned over for it; a face with no
-/// region on either side (an open sheet of the complex) is copied once, as
-/// it is, for the sheets' own part `open`.
+/// region on either side (of a closed part that encloses no volume, such
+/// as a sheet written twice) is copied once, as it is, for such faces' own
+/// part `open`.
 fn face_copies(sides: [u32; 2], open: u32) -> [Option<(u32, bool)>; 2] {
     match sides {
         [OUTSIDE, OUTSIDE] => [Some((open, false)), None],
@@ -181,21 +185,24 @@ pub(super) fn run(
     // the regions' runs' summary, intermediate stages and fixes.
     let inner = smoothed.report;
     let curvature = timings.time(Stage::Report, || {
-        let measure = |at: &[DVec3]| {
-            let curvature = super::stage_curvature(mesh, topo, at, params);
-            let stage = measure_stage(
-                mesh,
-                topo,
-                at,
-                input,
-                Some(&curvature),
-                params.quality.short_edge_fraction,
-            );
-            (stage, curvature)
-        };
-        report.stages.input = Some(measure(input).0);
-        let (last, curvature) = measure(&positions);
-        report.stages.final_stage = Some(last);
+        // The analysis measured the input but for its curvature, which a
+        // run takes from its first fits: here those were the regions'.
+        if let Some(stage) = report.stages.input.as_mut() {
+            let c = super::stage_curvature(mesh, topo, input, params);
+            stage.curvature_variation = Some(CurvatureVariation::new(
+                mean_curvature_variation(topo, &c),
+                stage.mean_edge_length,
+            ));
+        }
+        let curvature = super::stage_curvature(mesh, topo, &positions, params);
+        report.stages.final_stage = Some(measure_stage(
+            mesh,
+            topo,
+            &positions,
+            input,
+            Some(&curvature),
+            params.quality.short_edge_fraction,
+        ));
         curvature
     });
     report.stages.initial = inner.stages.initial;
