@@ -363,3 +363,72 @@ fn two_labels_as_one_complex_smooth_region_by_region() {
     let rms = (squares / mesh.num_vertices() as f64).sqrt();
     assert!(rms < 0.02, "{rms} voxel from the labels' own results");
 }
+
+#[test]
+fn a_fragment_that_collapses_leaves_its_walls_to_the_label_beside_it() {
+    // A ball with one voxel at its top given another label: smoothed alone,
+    // that voxel shrinks away (a fragment its mask overstates), so the
+    // walls it shares with the ball follow the ball's own result, not the
+    // mean of the two.
+    let n = 2 * RADIUS.ceil() as usize + 2;
+    let centre = DVec3::splat(n as f64 / 2.0 + 0.21);
+    let inside = |i: usize, j: usize, k: usize| {
+        let c = DVec3::new(i as f64, j as f64, k as f64) + 0.5;
+        c.distance(centre) < RADIUS
+    };
+    let (pi, pj) = (n / 2, n / 2);
+    let pk = (0..n).rev().find(|&k| inside(pi, pj, k)).unwrap();
+    let ball = VoxelMask::from_fn(IVec3::ZERO, [n, n, n], |i, j, k| {
+        inside(i, j, k) && (i, j, k) != (pi, pj, pk)
+    });
+    let fragment = VoxelMask::from_fn(IVec3::ZERO, [n, n, n], |i, j, k| (i, j, k) == (pi, pj, pk));
+    let mesh = label_complex(&[ball.clone(), fragment.clone()]);
+    let params = Params::default();
+    let cancel = AtomicBool::new(false);
+    let out = meshsmooth_core::run(&mesh, &params, &NoProgress, &cancel).unwrap();
+    assert_eq!(out.report.mesh.regions, 2);
+    assert_eq!(out.report.collapsed_surfaces, Some(1));
+    assert!(
+        out.report
+            .warnings
+            .iter()
+            .any(|w| w.contains("the 1 closed surfaces that collapsed")),
+        "{:?}",
+        out.report.warnings
+    );
+    let final_stage = out.report.stages.final_stage.as_ref().unwrap();
+    assert_eq!(
+        (final_stage.inverted_faces, final_stage.twisted_quads),
+        (0, 0)
+    );
+
+    let alone = |mask: &VoxelMask| {
+        let m = voxel_boundary_mesh(mask);
+        let o = meshsmooth_core::run(&m, &params, &NoProgress, &cancel).unwrap();
+        by_input_position(m.positions(), &o.positions)
+    };
+    let (ball_alone, fragment_alone) = (alone(&ball), alone(&fragment));
+    let find = |t: &[([u64; 3], DVec3)], key: [u64; 3]| {
+        t.binary_search_by_key(&key, |x| x.0).ok().map(|i| t[i].1)
+    };
+    // Over the wall's vertices: the output against the ball's own result,
+    // and the mean of the two labels' results against it.
+    let (mut to_ball, mut mean_to_ball, mut walls) = (0.0, 0.0, 0);
+    for (p, q) in mesh.positions().iter().zip(&out.positions) {
+        let key = p.to_array().map(f64::to_bits);
+        if let (Some(b), Some(f)) = (find(&ball_alone, key), find(&fragment_alone, key)) {
+            to_ball += q.distance_squared(b);
+            mean_to_ball += (0.5 * (b + f)).distance_squared(b);
+            walls += 1;
+        }
+    }
+    assert!(walls >= 4, "{walls}");
+    let (to_ball, mean_to_ball) = (
+        (to_ball / walls as f64).sqrt(),
+        (mean_to_ball / walls as f64).sqrt(),
+    );
+    assert!(
+        to_ball < 0.25 * mean_to_ball,
+        "the wall ends {to_ball} voxel from the ball's own result (the mean: {mean_to_ball})"
+    );
+}
