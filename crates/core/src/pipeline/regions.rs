@@ -6,19 +6,13 @@
 //! label's fits, volume restoration (paper section 2.3) and pinches read
 //! its own surface, as they would in a file of that label alone. The
 //! complex stays one: each vertex then takes the mean of its regions'
-//! results (a wall is as much one label's as the other's), less those of
-//! surfaces that collapsed where one that kept its volume bounds it too (a
-//! fragment a voxel or two across, which its mask overstates, shrinks
-//! away from a wall that the region beside it keeps in place), and the
-//! quality
+//! results (a wall is as much one label's as the other's), and the quality
 //! fixes (section 2.4) run once more on the complex, whose joined walls
 //! may close or turn faces that each region's run left sound.
 
 use super::{QUALITY_ROOM, SmoothError, SmoothOutput, Timings, ms, run_inner};
 use crate::control::{Progress, Stage};
-use crate::mesh::{
-    Mesh, OUTSIDE, Regions, Topology, body_ids, cone_volume6, paired_voxel_faces, vector_area,
-};
+use crate::mesh::{Mesh, OUTSIDE, Regions, Topology, body_ids, paired_voxel_faces};
 use crate::params::Params;
 use crate::quality::improve;
 use crate::report::{
@@ -26,7 +20,6 @@ use crate::report::{
     measure_stage,
 };
 use crate::smoothing::fidelity::{Fidelity, FidelityBound};
-use crate::smoothing::volume::MAX_VOLUME_OFFSET;
 use glam::DVec3;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
@@ -40,11 +33,6 @@ pub(super) struct Split {
     /// Pairs of faces of `mesh` that copy one wall, a copy for each region
     /// on its sides.
     shared: Vec<(u32, u32)>,
-    /// Per vertex of `mesh`, the region it is a copy for (`regions` for
-    /// the faces of no region).
-    region_of: Vec<u32>,
-    /// The number of bounded regions.
-    regions: usize,
 }
 
 /// The copies of a face with region `sides`: for each side with a region,
@@ -94,7 +82,6 @@ pub(super) fn split(mesh: &Mesh, regions: &Regions) -> Option<Split> {
         .iter()
         .map(|&(v, _)| mesh.positions()[v as usize])
         .collect();
-    let region_of: Vec<u32> = pairs.iter().map(|&(_, r)| r).collect();
     let mut offsets: Vec<u32> = vec![0];
     let mut corners: Vec<u32> = Vec::with_capacity(pairs.len());
     let mut shared = Vec::new();
@@ -123,8 +110,6 @@ pub(super) fn split(mesh: &Mesh, regions: &Regions) -> Option<Split> {
         mesh,
         copies,
         shared,
-        region_of,
-        regions: regions.count,
     })
 }
 
@@ -157,37 +142,22 @@ pub(super) fn run(
     } = context;
     let _s =
         tracing::info_span!("regions", regions = regions.count, walls = regions.walls).entered();
-    let (bodies, (surface_of, surfaces)) = timings.time(Stage::Analyse, || {
-        let topo = Topology::build(&split.mesh);
-        (
-            body_ids(&split.mesh, &topo, &split.shared).0,
-            topo.component_ids(),
-        )
+    let bodies = timings.time(Stage::Analyse, || {
+        body_ids(&split.mesh, &Topology::build(&split.mesh), &split.shared).0
     });
     let smoothed = run_inner(&split.mesh, Some(&bodies), params, progress, cancel, false)?;
     let input = mesh.positions();
     let offsets = &split.copies;
-    let (positions, joined, fixes, collapsed) = timings.time(Stage::Quality, || {
-        let collapsed = collapsed_surfaces(&split, &surface_of, surfaces, &smoothed.positions);
+    let (positions, joined, fixes) = timings.time(Stage::Quality, || {
         let mut positions: Vec<DVec3> = (0..mesh.num_vertices())
             .map(|v| {
-                let copies = offsets[v] as usize..offsets[v + 1] as usize;
-                let kept = |c: &usize| {
-                    let surface = surface_of[*c] as usize;
-                    !collapsed.get(surface).copied().unwrap_or(false)
-                };
-                let mean = |copies: &mut dyn Iterator<Item = usize>| {
-                    let (sum, n) = copies.fold((DVec3::ZERO, 0usize), |(s, n), c| {
-                        (s + smoothed.positions[c], n + 1)
-                    });
-                    (n > 0).then(|| sum / n as f64)
-                };
-                mean(&mut copies.clone().filter(kept))
-                    .or_else(|| mean(&mut copies.clone()))
-                    .unwrap_or(input[v])
+                let own = &smoothed.positions[offsets[v] as usize..offsets[v + 1] as usize];
+                if own.is_empty() {
+                    return input[v];
+                }
+                own.iter().sum::<DVec3>() / own.len() as f64
             })
             .collect();
-        let collapsed = collapsed.iter().filter(|&&c| c).count();
         let joined = wall_spread(&positions, &smoothed.positions, offsets);
         // The bound of the regions' runs, widened for the fixes: a voxel
         // complex written as triangles is bounded on its voxel faces.
@@ -208,7 +178,7 @@ pub(super) fn run(
             params.min_normal_cos(),
         );
         Fidelity::new(bound.as_ref(), input).apply(&mut positions);
-        (positions, joined, fixes, collapsed)
+        (positions, joined, fixes)
     });
 
     // The complex's report: its own statistics, input and final measures;
@@ -261,20 +231,11 @@ pub(super) fn run(
     report.mesh.region_walls = regions.walls as u64;
     report.walls_joined = Some(joined);
     report.joined_fixes = Some(fixes);
-    report.collapsed_surfaces = Some(collapsed as u64);
-    let left_out = if collapsed > 0 {
-        format!(
-            " (less those of the {collapsed} closed surfaces that collapsed, fragments a voxel \
-             or two across, where a surface that kept its volume bounds it too)"
-        )
-    } else {
-        String::new()
-    };
     report.warnings.push(format!(
         "the mesh is a complex of {} regions sharing {} wall faces (a multi-label surface, \
          each wall written once): each region was smoothed as its own closed surface, and each \
-         wall vertex put at the mean of its regions' results{left_out}, which lay {:.3} from it \
-         on average and {:.3} at most (in the mesh's units)",
+         wall vertex put at the mean of its regions' results, which lay {:.3} from it on \
+         average and {:.3} at most (in the mesh's units)",
         regions.count, regions.walls, joined.mean, joined.max
     ));
     super::final_warnings(params, &mut report, true);
@@ -296,49 +257,6 @@ pub(super) fn run(
         positions,
         report,
     })
-}
-
-/// Per closed surface of `split` (its connected components: `surface_of`
-/// each copy, `count` of them), whether it collapsed in the run that
-/// smoothed it to `smoothed`: its volume changed sign, or by more than the
-/// volume restoration's largest offset ([`MAX_VOLUME_OFFSET`] of the mean
-/// edge) over its area, the test by which the restoration (section 2.3)
-/// leaves a component as smoothed. A fragment a voxel or two across, which
-/// its mask overstates, ends so; its copies of a wall then say less of
-/// where the wall lies than the surface on the other side, where that kept
-/// its volume. A hole of one label around a fragment of another collapses
-/// with it, and their wall keeps the mean. The faces of no region, which
-/// enclose nothing, never collapse.
-fn collapsed_surfaces(
-    split: &Split,
-    surface_of: &[u32],
-    count: usize,
-    smoothed: &[DVec3],
-) -> Vec<bool> {
-    let input = split.mesh.positions();
-    // Per surface: six times its volume before and after, and its area after.
-    let mut sums = vec![[0.0f64; 3]; count];
-    for face in split.mesh.faces() {
-        let Some(&first) = face.first() else {
-            continue;
-        };
-        let in_region = split
-            .region_of
-            .get(first as usize)
-            .is_some_and(|&r| (r as usize) < split.regions);
-        let surface = surface_of.get(first as usize).copied();
-        if let (true, Some(sum)) = (in_region, surface.and_then(|s| sums.get_mut(s as usize))) {
-            sum[0] += cone_volume6(face, input);
-            sum[1] += cone_volume6(face, smoothed);
-            sum[2] += vector_area(face, smoothed).length();
-        }
-    }
-    let offset = MAX_VOLUME_OFFSET * split.mesh.mean_edge_length();
-    sums.iter()
-        .map(|&[before, after, area]| {
-            after / before <= 0.0 || (before - after).abs() / 6.0 > offset * area
-        })
-        .collect()
 }
 
 /// How far the copies of the vertices with more than one (the walls')

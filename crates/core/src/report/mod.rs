@@ -22,7 +22,7 @@ use sha2::{Digest, Sha256};
 /// Version of the report's JSON schema: the major number changes when a
 /// field is removed or changes meaning, the minor number when fields are
 /// added.
-pub const SCHEMA_VERSION: &str = "2.9";
+pub const SCHEMA_VERSION: &str = "2.8";
 
 /// Width of one angle-histogram bin, in degrees.
 pub const ANGLE_BIN_DEG: f64 = 5.0;
@@ -61,9 +61,8 @@ pub struct QualityReport {
     #[serde(default)]
     pub walls_parted: Option<Displacement>,
     /// Where the mesh is a complex of regions (`mesh.regions`): how far
-    /// each wall vertex's copies, one per region around it, lay from the
-    /// position the output takes (their mean, less the copies of collapsed
-    /// surfaces: `collapsed_surfaces`), over the copies, in model units;
+    /// each wall vertex's copies, one per region around it, lay from their
+    /// mean, which the output takes, over the copies, in model units;
     /// absent otherwise. Since schema 2.8.
     #[serde(default)]
     pub walls_joined: Option<Displacement>,
@@ -72,14 +71,6 @@ pub struct QualityReport {
     /// regions' runs'); absent otherwise. Since schema 2.8.
     #[serde(default)]
     pub joined_fixes: Option<QualityFixStats>,
-    /// Where the mesh is a complex of regions: how many of the regions'
-    /// closed surfaces collapsed in their runs (a fragment a voxel or two
-    /// across, which its mask overstates, whose volume no offset of half
-    /// an edge gives back). A wall vertex leaves their copies out of its
-    /// mean where a surface that kept its volume bounds it too; absent
-    /// otherwise. Since schema 2.9.
-    #[serde(default)]
-    pub collapsed_surfaces: Option<u64>,
 }
 
 impl QualityReport {
@@ -99,7 +90,6 @@ impl QualityReport {
             walls_parted: None,
             walls_joined: None,
             joined_fixes: None,
-            collapsed_surfaces: None,
         }
     }
 }
