@@ -20,11 +20,14 @@
 //! shrink. Otherwise both end points stay.
 //!
 //! Order: Gauss-Seidel, sequential, edges in ascending edge order within a
-//! sweep (deterministic); later sweeps revisit only the edges still short;
-//! the fix stops after a sweep that moves nothing or after `max_sweeps`.
+//! sweep (deterministic); later sweeps revisit only the edges still short,
+//! and of those only the ones near a vertex that moved since they were last
+//! tried (a try reads nothing farther, [`DEPENDENCY_RINGS`], so one whose
+//! surroundings stand still would be refused again); the fix stops after a
+//! sweep that moves nothing or after `max_sweeps`.
 //! Only edges with two interior end points and exactly two faces move.
 
-use super::local::{LocalSurface, MoveTester, ordered_link};
+use super::local::{LocalSurface, MoveTester, is_hub, ordered_link};
 use crate::mesh::{Mesh, Topology, VertexKind, mean_edge_length};
 use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
@@ -44,12 +47,65 @@ pub struct ShortEdgeStats {
     pub lengthened: u64,
     /// Tried moves refused because they would have made something worse,
     /// or short edges that could not be constructed for (boundary,
-    /// non-manifold).
+    /// non-manifold); an edge refused again in a later sweep counts again,
+    /// whether tried anew or skipped because nothing near it has moved.
     pub rejected: u64,
     /// Sweeps run.
     pub sweeps: u64,
     /// Short edges after the fix (same threshold).
     pub remaining: u64,
+}
+
+/// How far, in steps from a vertex to the corners of its faces, a try on an
+/// edge reads positions from either end point: its fitted surface takes
+/// the 2-ring ([`LocalSurface::at`]: the neighbours' neighbours) with each
+/// point's own vertex normal (the corners of that point's faces); the
+/// link, the end point's normal and the faces [`MoveTester`] judges lie
+/// one step out. A hub's neighbours are not in a 2-ring through it, so the
+/// steps do not go on through a hub.
+const DEPENDENCY_RINGS: usize = 3;
+
+/// The tick of an edge not tried yet (and of every edge once the ticks run
+/// out): such an edge is always tried.
+const NEVER_TRIED: u32 = u32::MAX;
+
+/// Marks with `tick` (in `touched`) every vertex within
+/// [`DEPENDENCY_RINGS`] of `moved`, not going on through hubs: the end
+/// points of the edges whose try may now come out otherwise. `frontier`
+/// and `next` are scratch.
+fn mark_near(
+    mesh: &Mesh,
+    topo: &Topology,
+    moved: [usize; 2],
+    tick: u32,
+    touched: &mut [u32],
+    frontier: &mut Vec<u32>,
+    next: &mut Vec<u32>,
+) {
+    frontier.clear();
+    for v in moved {
+        if touched[v] != tick {
+            touched[v] = tick;
+            frontier.push(v as u32);
+        }
+    }
+    for _ in 0..DEPENDENCY_RINGS {
+        next.clear();
+        for &v in frontier.iter() {
+            if is_hub(topo, v as usize) {
+                continue;
+            }
+            for &f in topo.vertex_faces(v as usize) {
+                for &c in mesh.face(f as usize) {
+                    if touched[c as usize] != tick {
+                        touched[c as usize] = tick;
+                        next.push(c);
+                    }
+                }
+            }
+        }
+        std::mem::swap(frontier, next);
+    }
 }
 
 fn short_edges(topo: &Topology, positions: &[DVec3], threshold: f64) -> Vec<u32> {
@@ -80,8 +136,44 @@ pub fn fix_short_edges(
     max_sweeps: u32,
     min_normal_cos: f64,
 ) -> ShortEdgeStats {
+    let plan = Plan {
+        bound,
+        fraction,
+        max_sweeps,
+        min_normal_cos,
+        skip_unmoved: true,
+    };
+    sweep_short_edges(mesh, topo, positions, input, plan)
+}
+
+/// [`fix_short_edges`]'s arguments past the positions, and whether a
+/// sweep skips the edges that nothing near has moved since they were
+/// refused (the tests try every edge in every sweep to check the skip).
+#[derive(Clone, Copy)]
+struct Plan<'a> {
+    bound: Option<&'a FidelityBound>,
+    fraction: f64,
+    max_sweeps: u32,
+    min_normal_cos: f64,
+    skip_unmoved: bool,
+}
+
+fn sweep_short_edges(
+    mesh: &Mesh,
+    topo: &Topology,
+    positions: &mut [DVec3],
+    input: &[DVec3],
+    plan: Plan,
+) -> ShortEdgeStats {
+    let Plan {
+        bound,
+        fraction,
+        max_sweeps,
+        min_normal_cos,
+        skip_unmoved,
+    } = plan;
     let threshold = fraction * mean_edge_length(mesh, positions);
-    let mut short = short_edges(topo, positions, threshold);
+    let short = short_edges(topo, positions, threshold);
     let mut stats = ShortEdgeStats {
         threshold,
         found: short.len() as u64,
@@ -92,20 +184,48 @@ pub fn fix_short_edges(
         tester: MoveTester::bounded(bound),
         ..Fixer::default()
     };
+    // Each short edge with the tick it was last tried at; each vertex with
+    // the tick of the last move near it (ticks count the moves kept).
+    let mut short: Vec<(u32, u32)> = short.into_iter().map(|e| (e, NEVER_TRIED)).collect();
+    let mut touched = vec![0u32; positions.len()];
+    let mut tick = 0u32;
+    let (mut frontier, mut next) = (Vec::new(), Vec::new());
     while !short.is_empty() && stats.sweeps < max_sweeps as u64 {
         stats.sweeps += 1;
         let mut changed = false;
-        for &e in &short {
-            if fixer.lengthen(mesh, topo, e as usize, positions, input) {
+        for (e, tried) in short.iter_mut() {
+            let [a, b] = topo.edges()[*e as usize];
+            let (a, b) = (a as usize, b as usize);
+            if skip_unmoved && *tried != NEVER_TRIED && touched[a] <= *tried && touched[b] <= *tried
+            {
+                // Nothing it reads has moved since it was refused: it would
+                // be refused again, and counts so.
+                stats.rejected += 1;
+                continue;
+            }
+            *tried = tick;
+            if fixer.lengthen(mesh, topo, *e as usize, positions, input) {
                 stats.lengthened += 1;
                 changed = true;
+                // At the last tick every edge counts as never tried, so a
+                // mesh with that many moves is tried in full.
+                tick = tick.saturating_add(1);
+                mark_near(
+                    mesh,
+                    topo,
+                    [a, b],
+                    tick,
+                    &mut touched,
+                    &mut frontier,
+                    &mut next,
+                );
             } else {
                 stats.rejected += 1;
             }
         }
         let t2 = threshold * threshold;
         let p: &[DVec3] = positions;
-        short.retain(|&e| {
+        short.retain(|&(e, _)| {
             let [a, b] = topo.edges()[e as usize];
             p[a as usize].distance_squared(p[b as usize]) < t2
         });
@@ -262,6 +382,56 @@ mod tests {
     use super::*;
     use crate::quality::fixtures::{at, grid, min_split_angle};
     use crate::report::measure_stage;
+
+    #[test]
+    fn skipping_the_edges_nothing_near_has_moved_changes_nothing() {
+        // A bumpy grid whose rows are squeezed together in places: many
+        // short edges side by side, some lengthened only once a neighbour
+        // has moved. Trying every short edge in every sweep and skipping
+        // the ones whose surroundings stood still must give the same
+        // positions and counts.
+        let m = grid(24);
+        let t = Topology::build(&m);
+        let input: Vec<DVec3> = m
+            .positions()
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let squeeze = if (i / 25) % 3 == 1 { 0.7 } else { 0.0 };
+                let (dx, dy) = (
+                    crate::shapes::normal_deviate(3, i as u64),
+                    crate::shapes::normal_deviate(4, i as u64),
+                );
+                DVec3::new(
+                    p.x + 0.15 * dx,
+                    p.y - squeeze + 0.15 * dy,
+                    0.3 * (0.7 * p.x).sin() * (0.5 * p.y).cos(),
+                )
+            })
+            .collect();
+        let plan = Plan {
+            bound: None,
+            fraction: 0.4,
+            max_sweeps: 20,
+            min_normal_cos: 0.5,
+            skip_unmoved: true,
+        };
+        let (mut skipped, mut every) = (input.clone(), input.clone());
+        let a = sweep_short_edges(&m, &t, &mut skipped, &input, plan);
+        let b = sweep_short_edges(
+            &m,
+            &t,
+            &mut every,
+            &input,
+            Plan {
+                skip_unmoved: false,
+                ..plan
+            },
+        );
+        assert!(a.found > 20 && a.lengthened > 0 && a.sweeps > 2, "{a:?}");
+        assert_eq!(a, b);
+        assert_eq!(skipped, every);
+    }
 
     #[test]
     fn a_short_edge_is_lengthened_on_the_surface() {
