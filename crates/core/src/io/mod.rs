@@ -508,8 +508,8 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
 /// one face) than `mesh`: welding joins rims that lie at the same place.
 fn closes_open_edges(mesh: &Mesh, welded: &Mesh) -> bool {
     let (before, after) = rayon::join(
-        || Topology::build(mesh).num_boundary_edges(),
-        || Topology::build(welded).num_boundary_edges(),
+        || Topology::count_boundary_edges(mesh),
+        || Topology::count_boundary_edges(welded),
     );
     after < before
 }

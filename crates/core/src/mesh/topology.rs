@@ -199,6 +199,14 @@ impl Topology {
         &self.kinds
     }
 
+    /// The number of `mesh`'s edges with one face, as
+    /// [`Topology::num_boundary_edges`] counts them, without the rest of the
+    /// topology (the vertices' face lists and kinds): all a check on a
+    /// weld's open edges needs.
+    pub fn count_boundary_edges(mesh: &Mesh) -> usize {
+        Topology::edges_of(mesh).num_boundary_edges()
+    }
+
     /// Edges with exactly one face.
     pub fn num_boundary_edges(&self) -> usize {
         (0..self.edges.len())
