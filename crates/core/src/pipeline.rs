@@ -791,19 +791,30 @@ pub fn run_bodies(
     progress: &dyn Progress,
     cancel: &AtomicBool,
 ) -> Result<SmoothOutput, SmoothError> {
-    run_inner(mesh, bodies, params, progress, cancel, true)
+    run_inner(mesh, bodies, params, progress, cancel, Call::Whole)
 }
 
-/// [`run_bodies`]; with `complexes`, a multi-label complex
-/// ([`crate::mesh::regions`]) is smoothed region by region
-/// ([`regions::run`]), each region's surface a body of its own.
+/// What [`run_inner`] is called on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Call {
+    /// A whole mesh: a multi-label complex ([`crate::mesh::regions`]) is
+    /// smoothed region by region ([`regions::run`]).
+    Whole,
+    /// The regions of a complex, each on its own copies of its walls: the
+    /// complex measures its own final curvature, so the run leaves out the
+    /// fits that would measure the copies' (the per-vertex curvature it
+    /// returns is then the smoothing stage's, or empty).
+    Regions,
+}
+
+/// [`run_bodies`], on a whole mesh or on a complex's regions (`call`).
 fn run_inner(
     mesh: &Mesh,
     bodies: Option<&[u32]>,
     params: &Params,
     progress: &dyn Progress,
     cancel: &AtomicBool,
-    complexes: bool,
+    call: Call,
 ) -> Result<SmoothOutput, SmoothError> {
     params.validate()?;
     let bodies = bodies.filter(|b| b.len() == mesh.num_vertices());
@@ -815,7 +826,7 @@ fn run_inner(
     let (oriented, input_topo, input_masks, mut report) =
         timings.time(Stage::Analyse, || analyse(mesh, params))?;
     let mesh = oriented.as_ref().unwrap_or(mesh);
-    if complexes && bodies.is_none() && params.method == Method::WangYu {
+    if call == Call::Whole && bodies.is_none() && params.method == Method::WangYu {
         let split = timings.time(Stage::Analyse, || {
             regions(mesh, &input_topo).and_then(|r| regions::split(mesh, &r).map(|s| (r, s)))
         });
@@ -964,17 +975,20 @@ fn run_inner(
     }
 
     let curvature = timings.time(Stage::Report, || {
-        let curvature =
-            unmoved_curvature.unwrap_or_else(|| stage_curvature(mesh, topo, &positions, params));
+        let curvature = match (unmoved_curvature, call) {
+            (Some(c), _) => Some(c),
+            (None, Call::Whole) => Some(stage_curvature(mesh, topo, &positions, params)),
+            (None, Call::Regions) => None,
+        };
         report.stages.final_stage = Some(measure_stage(
             input_mesh,
             &input_topo,
             &positions,
             mesh.positions(),
-            Some(&curvature),
+            curvature.as_deref(),
             params.quality.short_edge_fraction,
         ));
-        curvature
+        curvature.unwrap_or_default()
     });
     progress.update(Stage::Report, 1.0);
     final_warnings(params, &mut report, volume_warned);

@@ -10,7 +10,7 @@
 //! fixes (section 2.4) run once more on the complex, whose joined walls
 //! may close or turn faces that each region's run left sound.
 
-use super::{QUALITY_ROOM, SmoothError, SmoothOutput, Timings, ms, run_inner};
+use super::{Call, QUALITY_ROOM, SmoothError, SmoothOutput, Timings, ms, run_inner};
 use crate::control::{Progress, Stage};
 use crate::mesh::{Mesh, OUTSIDE, Regions, Topology, body_ids, paired_voxel_faces};
 use crate::params::Params;
@@ -145,7 +145,14 @@ pub(super) fn run(
     let bodies = timings.time(Stage::Analyse, || {
         body_ids(&split.mesh, &Topology::build(&split.mesh), &split.shared).0
     });
-    let smoothed = run_inner(&split.mesh, Some(&bodies), params, progress, cancel, false)?;
+    let smoothed = run_inner(
+        &split.mesh,
+        Some(&bodies),
+        params,
+        progress,
+        cancel,
+        Call::Regions,
+    )?;
     let input = mesh.positions();
     let offsets = &split.copies;
     let (positions, joined, fixes) = timings.time(Stage::Quality, || {
