@@ -195,7 +195,8 @@ pub struct Params {
     /// The lattice fairing's pull toward the input corners, relative to the
     /// bending energy: `s^-4` keeps the input's shape at wavelengths longer
     /// than about `2 pi s` edges and smooths shorter ones within the dual
-    /// voxels. Default 0.03 (`s` about 2.4), the best of 0.01 to 0.06 on
+    /// voxels. Corners deep inside a wide terrace are pulled only within its
+    /// plane, so it bends with its rims wherever the grid put it. Default 0.03 (`s` about 2.4), the best of 0.01 to 0.06 on
     /// the real voxel masks and the analytic families (`docs/tuning.md`);
     /// range 0 < a <= 100.
     pub lattice_fairing_anchor: f64,

@@ -21,7 +21,7 @@ use crate::report::{
 use crate::report::{mean_curvature_variation, measure_stage, mesh_statistics};
 use crate::smoothing::adaptive::{GrowthRule, PassSettings, adaptive_passes, grow_neighbourhoods};
 use crate::smoothing::curvature::{Curvatures, vertex_curvatures};
-use crate::smoothing::fairing::{FairingPlan, fair};
+use crate::smoothing::fairing::{FairingPlan, TERRACE_RINGS, fair};
 use crate::smoothing::fidelity::{Fidelity, FidelityBound};
 use crate::smoothing::initial::{InitialPlan, initial_passes};
 use crate::smoothing::label::{Label, label};
@@ -579,6 +579,7 @@ fn fair_staircase(run: &Run, positions: &mut [DVec3]) {
         movable: run.fitted,
         iterations: params.lattice_fairing_iterations,
         anchor: params.lattice_fairing_anchor,
+        terrace_rings: TERRACE_RINGS,
         bound: &room,
     };
     fair(run.topo, positions, run.mesh.positions(), &plan);

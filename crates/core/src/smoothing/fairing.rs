@@ -15,7 +15,11 @@
 //!   E(x) = sum_v |L x_v|^2 + anchor * sum_v |x_v - x0_v|^2,
 //!
 //! over the positions inside each vertex's box: a terrace bends with the
-//! curvature its rims give it, and the boxes keep what the mask says. The
+//! curvature its rims give it, and the boxes keep what the mask says. Deep
+//! inside a wide terrace the pull acts only within the terrace's plane
+//! ([`TERRACE_RINGS`]): there the corners' common height says no more than
+//! the boxes do, and pulled toward it the terrace's middle stays nearly
+//! flat however far the grid put its plane from the true pole. The
 //! energy is a sum over the lattice's axes, and on thick slices the pull
 //! along the coarse axis is weaker, in step with its longer terraces
 //! ([`axis_anchors`]).
@@ -36,6 +40,18 @@ use rayon::prelude::*;
 /// inverse keeps the accelerated iteration monotone in the limit.
 const STEP: f64 = 0.2;
 
+/// How many rings of corners in a terrace's plane a corner must have
+/// around it before the fairing stops pulling it along the terrace's
+/// normal (its corners' common height tells where the surface is no
+/// better than their boxes do; the rims, where the staircase turns, do).
+/// A corner three rings in lies on a terrace at least seven corners
+/// across, which a surface bends over only where its radius is about five
+/// voxels or more (the voxel sphere's poles, a brain's outer convexity). A
+/// gyrus's crown two or three voxels across is a narrower terrace and keeps
+/// its pull: on the real masks one and two rings flatten such crowns
+/// (`docs/tuning.md`, the fairing's terraces).
+pub const TERRACE_RINGS: u32 = 3;
+
 /// What a fairing run does.
 #[derive(Debug, Clone, Copy)]
 pub struct FairingPlan<'a> {
@@ -49,6 +65,10 @@ pub struct FairingPlan<'a> {
     /// longer ones. Along the finest axis of the lattice; a coarser axis
     /// (thick slices) gets a weaker pull ([`axis_anchors`]).
     pub anchor: f64,
+    /// Corners with at least this many rings of a terrace around them get no
+    /// pull along its normal ([`TERRACE_RINGS`]); 0 pulls every corner along
+    /// every axis.
+    pub terrace_rings: u32,
     /// The box each vertex stays in around its anchor position (the
     /// fidelity bound, possibly narrowed), the vertices that do not move
     /// included; applied to every iterate.
@@ -104,6 +124,13 @@ pub fn fair(
     let mut y = x.clone();
     let mut umbrella = vec![Vec3::ZERO; positions.len()];
     let anchor = axis_anchors(plan.anchor, spacing);
+    let terraces = terrace_axes(
+        topo,
+        anchor_positions,
+        plan.terrace_rings,
+        &to_frame,
+        spacing,
+    );
     let step = STEP as f32;
     let mut t = 1.0f64;
     for _ in 0..plan.iterations {
@@ -126,7 +153,8 @@ pub fn fair(
                     return;
                 }
                 let bend = umbrella_at(topo, &umbrella, v);
-                let next = within(*y - step * (bend + anchor * *y), size[v], spacing);
+                let pull = anchor * pulled_axes(terraces[v]);
+                let next = within(*y - step * (bend + pull * *y), size[v], spacing);
                 *y = next + momentum * (next - *x);
                 *x = next;
             });
@@ -162,6 +190,67 @@ fn axis_anchors(anchor: f64, spacing: Vec3) -> Vec3 {
         }
     }))
 }
+
+/// Per vertex, bit `a` set where it lies `rings` rings deep in a terrace
+/// across axis `a` of the lattice's frame: all its edges and those of the
+/// `rings - 1` rings around it run across that axis (at the input
+/// corners). No vertex is that deep when `rings` is 0.
+fn terrace_axes(
+    topo: &Topology,
+    anchor_positions: &[DVec3],
+    rings: u32,
+    to_frame: &(impl Fn(DVec3) -> Vec3 + Sync),
+    spacing: Vec3,
+) -> Vec<u8> {
+    let n = anchor_positions.len();
+    if rings == 0 {
+        return vec![0; n];
+    }
+    let mut flat: Vec<u8> = (0..n)
+        .into_par_iter()
+        .with_min_len(4096)
+        .map(|v| {
+            let nb = topo.neighbors(v);
+            if nb.is_empty() {
+                return 0;
+            }
+            let mut bits = 0b111;
+            for &j in nb {
+                let d = to_frame(anchor_positions[j as usize] - anchor_positions[v]);
+                for a in 0..3 {
+                    if d[a].abs() >= FLAT_TOLERANCE * spacing[a] {
+                        bits &= !(1 << a);
+                    }
+                }
+            }
+            bits
+        })
+        .collect();
+    for _ in 1..rings {
+        flat = (0..n)
+            .into_par_iter()
+            .with_min_len(4096)
+            .map(|v| {
+                topo.neighbors(v)
+                    .iter()
+                    .fold(flat[v], |bits, &j| bits & flat[j as usize])
+            })
+            .collect();
+    }
+    flat
+}
+
+/// 1 along each axis a vertex of [`terrace_axes`] bits `terraces` is pulled
+/// along, 0 along a deep terrace's normal.
+#[inline]
+fn pulled_axes(terraces: u8) -> Vec3 {
+    Vec3::from_array([0, 1, 2].map(|a| f32::from(u8::from(terraces & (1 << a) == 0))))
+}
+
+/// How far off a terrace's plane, in spacings along its normal, an input
+/// corner may lie and still count as in it: the input corners of a voxel
+/// mesh lie on the lattice up to the file's rounding.
+const FLAT_TOLERANCE: f32 = 1e-3;
 
 /// Offset `d` (in the lattice's frame) brought within a bound of `size`:
 /// a box of that many `spacing`s along each axis when positive, a ball of
@@ -228,9 +317,44 @@ mod tests {
         assert!(after < 0.17 * before, "{before} -> {after}");
     }
 
+    #[test]
+    fn a_wide_terrace_bends_toward_the_pole_the_grid_put_above_it() {
+        // Placement 12 of the voxel sphere r=12 has its poles along z about
+        // half a voxel beyond its terraces, each some nine corners across.
+        // Pulled along z toward their height, the terraces' middles stay
+        // nearly flat; pulled only within their plane, they bend out with
+        // their rims.
+        let sphere = shapes::placed(
+            shapes::Sphere {
+                center: DVec3::ZERO,
+                radius: 12.0,
+            },
+            12,
+        );
+        let mesh = shapes::voxel_boundary_mesh(&shapes::voxel_mask(&sphere));
+        let center = sphere.offset;
+        let polar: Vec<usize> = (0..mesh.num_vertices())
+            .filter(|&v| (mesh.positions()[v] - center).normalize().z.abs() > 0.97)
+            .collect();
+        let rms = |rings| {
+            let p = faired_with(&mesh, rings);
+            let at: Vec<DVec3> = polar.iter().map(|&v| p[v]).collect();
+            shapes::rms_distance(&sphere, &at)
+        };
+        let (pulled, free) = (rms(0), rms(TERRACE_RINGS));
+        assert!(polar.len() > 40, "{} polar corners", polar.len());
+        assert!(free < 0.85 * pulled, "{pulled} -> {free}");
+    }
+
     /// `mesh`'s vertices after 40 fairing steps of anchor 0.03 within its
     /// fidelity bound, every vertex movable.
     fn faired(mesh: &crate::mesh::Mesh) -> Vec<DVec3> {
+        faired_with(mesh, TERRACE_RINGS)
+    }
+
+    /// [`faired`] with terraces `terrace_rings` deep left free along their
+    /// normals.
+    fn faired_with(mesh: &crate::mesh::Mesh, terrace_rings: u32) -> Vec<DVec3> {
         let topo = Topology::build(mesh);
         let input = mesh.positions();
         let bound = FidelityBound::new(mesh, &topo, 0.5);
@@ -239,6 +363,7 @@ mod tests {
             movable: &movable,
             iterations: 40,
             anchor: 0.03,
+            terrace_rings,
             bound: &bound,
         };
         let mut p = input.to_vec();
@@ -271,6 +396,7 @@ mod tests {
             movable: &held,
             iterations: 40,
             anchor: 0.03,
+            terrace_rings: TERRACE_RINGS,
             bound: &bound,
         };
         let mut q = input.to_vec();
