@@ -1075,6 +1075,8 @@ fn oriented(mesh: &Mesh, topo: &Topology) -> (Option<Mesh>, Orientation) {
 fn report_orientation(orientation: &Orientation, report: &mut QualityReport) {
     report.mesh.reoriented_faces = orientation.turned_faces as u64;
     report.mesh.inside_out = orientation.inside_out;
+    report.mesh.inside_out_bodies = orientation.inside_out_bodies as u64;
+    report.mesh.inside_out_body_faces = orientation.inside_out_body_faces as u64;
     report.mesh.orientation_seams = orientation.seams as u64;
     if orientation.inside_out {
         report.warnings.push(
@@ -1082,6 +1084,18 @@ fn report_orientation(orientation: &Orientation, report: &mut QualityReport) {
              and measured with every face turned; the output keeps the file's winding"
                 .to_string(),
         );
+    }
+    if orientation.inside_out_bodies > 0 {
+        let (bodies, faces) = (
+            orientation.inside_out_bodies,
+            orientation.inside_out_body_faces,
+        );
+        let verb = if bodies == 1 { "is" } else { "are" };
+        report.warnings.push(format!(
+            "{bodies} of the mesh's closed parts ({faces} faces) {verb} wound inside out beside \
+             parts wound outward: they were smoothed and measured turned; the output keeps the \
+             file's winding"
+        ));
     }
     let against = report.mesh.faces_wound_against();
     if against > 0 {
@@ -1452,6 +1466,45 @@ mod tests {
                 assert!(!out.report.warnings.is_empty());
             }
         }
+    }
+
+    #[test]
+    fn a_body_wound_inside_out_beside_an_outward_one_smooths_as_wound_outward() {
+        // Two marching-cubes spheres apart in one file, the second wound
+        // inside out: the whole encloses no volume to speak of, and only
+        // that body turns.
+        let (_, sphere) = shapes::mc_sphere(5.0);
+        let n = sphere.num_vertices() as u32;
+        let two = |inward: bool| {
+            let mut p = sphere.positions().to_vec();
+            p.extend(
+                sphere
+                    .positions()
+                    .iter()
+                    .map(|&q| q + DVec3::new(20.0, 0.0, 0.0)),
+            );
+            let mut polygons: Vec<Vec<u32>> = sphere.faces().map(<[u32]>::to_vec).collect();
+            polygons.extend(sphere.faces().map(|f| {
+                let mut c: Vec<u32> = f.iter().map(|&v| v + n).collect();
+                if inward {
+                    c.reverse();
+                }
+                c
+            }));
+            Mesh::from_polygons(p, &polygons).unwrap()
+        };
+        let outward = run_defaults(&two(false));
+        let out = run_defaults(&two(true));
+        assert_eq!(out.positions, outward.positions);
+        assert_eq!(out.report.stages, outward.report.stages);
+        let m = &out.report.mesh;
+        let body = sphere.num_faces() as u64;
+        assert_eq!(
+            (m.inside_out, m.inside_out_bodies, m.inside_out_body_faces),
+            (false, 1, body)
+        );
+        assert_eq!((m.reoriented_faces, m.faces_wound_against()), (body, 0));
+        assert_eq!(out.report.warnings.len(), 1, "{:?}", out.report.warnings);
     }
 
     #[test]

@@ -10,10 +10,17 @@
 //! whole. [`orientation`] finds the turns that make the winding agree
 //! across every edge shared by exactly two faces, keeping each patch's
 //! majority, then turns the whole mesh if it is closed and encloses a
-//! negative volume. A mesh already wound consistently and outward gets no
-//! turn, so its run is the same as without this step.
+//! negative volume. A closed mesh of several bodies whose own windings
+//! disagree (one written inside out beside others wound outward, a file
+//! merged from two writers) turns each body that encloses a negative
+//! volume and lies within no other body's bounding box
+//! ([`inside_out_bodies`]): a body inside another may be a cavity, wound
+//! inward on purpose. A mesh already
+//! wound consistently and outward gets no turn, so its run is the same as
+//! without this step.
 
 use super::{Mesh, Topology, cone_volume6};
+use glam::DVec3;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU8, Ordering};
 
@@ -33,6 +40,12 @@ pub struct Orientation {
     /// True when the closed mesh, once consistent, enclosed a negative
     /// volume and every face was turned once more.
     pub inside_out: bool,
+    /// Bodies turned whole on their own: each enclosed a negative volume,
+    /// lay within no other body's bounding box, and another body so placed
+    /// was wound outward ([`inside_out_bodies`]). Never with `inside_out`.
+    pub inside_out_bodies: usize,
+    /// Faces of those bodies (included in `turned_faces`).
+    pub inside_out_body_faces: usize,
     /// Edges between two faces still wound the same way: a surface that
     /// cannot be oriented (a Moebius strip) keeps one such seam per loop.
     pub seams: usize,
@@ -63,14 +76,8 @@ pub fn orientation(mesh: &Mesh, topo: &Topology) -> Orientation {
     let (passes, disagree) = edge_passes(mesh, topo);
     if !disagree {
         // Every face agrees with its neighbours (the usual file): only the
-        // whole may turn.
-        let inside_out = closed && mesh.signed_volume() < 0.0;
-        return Orientation {
-            turned: Vec::new(),
-            turned_faces: if inside_out { mesh.num_faces() } else { 0 },
-            inside_out,
-            seams: 0,
-        };
+        // bodies or the whole may turn.
+        return turn_outward(mesh, topo, closed, Vec::new(), 0);
     }
     // The other face across each side of `f`, and whether the two wind the
     // edge the same way.
@@ -125,15 +132,44 @@ pub fn orientation(mesh: &Mesh, topo: &Topology) -> Orientation {
         }
     }
 
-    let mut turned: Vec<bool> = state.iter().map(|&s| s == 1).collect();
+    let turned: Vec<bool> = state.iter().map(|&s| s == 1).collect();
+    turn_outward(mesh, topo, closed, turned, seams)
+}
+
+/// The orientation of `mesh` with its faces `turned` to agree (empty: none
+/// turned), made outward when it is `closed`: first each body wound inside
+/// out on its own ([`inside_out_bodies`]), then the whole when it still
+/// encloses a negative volume.
+fn turn_outward(
+    mesh: &Mesh,
+    topo: &Topology,
+    closed: bool,
+    mut turned: Vec<bool>,
+    seams: usize,
+) -> Orientation {
+    let n = mesh.num_faces();
+    let is_turned = |turned: &[bool], f: usize| turned.get(f).copied().unwrap_or(false);
+    let mut inside_out_bodies = 0;
+    let mut inside_out_body_faces = 0;
+    if closed && let Some(bodies) = self::inside_out_bodies(mesh, topo, &turned) {
+        turned.resize(n, false);
+        for (f, t) in turned.iter_mut().enumerate() {
+            if bodies.turns(mesh, f) {
+                *t = !*t;
+                inside_out_body_faces += 1;
+            }
+        }
+        inside_out_bodies = bodies.count;
+    }
     let volume6: f64 = (0..n)
         .map(|f| {
             let v = cone_volume6(mesh.face(f), mesh.positions());
-            if turned[f] { -v } else { v }
+            if is_turned(&turned, f) { -v } else { v }
         })
         .sum();
     let inside_out = closed && volume6 < 0.0;
     if inside_out {
+        turned.resize(n, false);
         for t in &mut turned {
             *t = !*t;
         }
@@ -143,8 +179,102 @@ pub fn orientation(mesh: &Mesh, topo: &Topology) -> Orientation {
         turned,
         turned_faces,
         inside_out,
+        inside_out_bodies,
+        inside_out_body_faces,
         seams,
     }
+}
+
+/// Most bounding-box comparisons [`inside_out_bodies`] makes, per face of
+/// the mesh: each body against every other, which a file of a few bodies
+/// keeps far below one pass over its faces; past this a file of very many
+/// bodies keeps the file's winding rather than cost more than linear time.
+const NESTING_WORK: usize = 8;
+
+/// The bodies [`inside_out_bodies`] turns: per vertex-connected component.
+struct BodyTurns {
+    /// Per vertex, its component.
+    component: Vec<u32>,
+    /// Per component, whether it turns.
+    turns: Vec<bool>,
+    /// Components that turn.
+    count: usize,
+}
+
+impl BodyTurns {
+    /// Whether face `f` belongs to a turning body.
+    fn turns(&self, mesh: &Mesh, f: usize) -> bool {
+        mesh.face(f).first().is_some_and(|&v| {
+            self.component
+                .get(v as usize)
+                .and_then(|&c| self.turns.get(c as usize))
+                .copied()
+                .unwrap_or(false)
+        })
+    }
+}
+
+/// The bodies of a closed `mesh` (its faces `turned` as given, empty for
+/// none) wound inside out on their own: a body (a vertex-connected
+/// component) that encloses a negative volume and whose bounding box lies
+/// in no other body's, where some other body so placed is wound outward.
+/// `None` when there is nothing to turn: one body, every body outward, or
+/// every such outermost body inside out (the whole mesh turns then,
+/// cavities included). A body within another's box keeps its winding: it
+/// may be a cavity, wound inward on purpose, or a body of its own (a
+/// nucleus in its cell), and the winding is all that tells the two apart.
+fn inside_out_bodies(mesh: &Mesh, topo: &Topology, turned: &[bool]) -> Option<BodyTurns> {
+    let (component, count) = topo.component_ids();
+    if count < 2 {
+        return None;
+    }
+    let p = mesh.positions();
+    let mut volume6 = vec![0.0f64; count];
+    let mut has_faces = vec![false; count];
+    for (f, face) in mesh.faces().enumerate() {
+        let Some(&first) = face.first() else {
+            continue;
+        };
+        let c = component[first as usize] as usize;
+        let v = cone_volume6(face, p);
+        volume6[c] += if turned.get(f).copied().unwrap_or(false) {
+            -v
+        } else {
+            v
+        };
+        has_faces[c] = true;
+    }
+    if volume6.iter().all(|&v| v >= 0.0) {
+        return None;
+    }
+    let mut lo = vec![DVec3::INFINITY; count];
+    let mut hi = vec![DVec3::NEG_INFINITY; count];
+    for (v, &c) in component.iter().enumerate() {
+        lo[c as usize] = lo[c as usize].min(p[v]);
+        hi[c as usize] = hi[c as usize].max(p[v]);
+    }
+    let bodies: Vec<usize> = (0..count).filter(|&c| has_faces[c]).collect();
+    if bodies.len().saturating_mul(bodies.len()) > NESTING_WORK.saturating_mul(mesh.num_faces()) {
+        return None;
+    }
+    let outer: Vec<bool> = (0..count)
+        .map(|c| {
+            has_faces[c]
+                && !bodies
+                    .iter()
+                    .any(|&d| d != c && lo[d].cmple(lo[c]).all() && hi[d].cmpge(hi[c]).all())
+        })
+        .collect();
+    if !(0..count).any(|c| outer[c] && volume6[c] > 0.0) {
+        return None;
+    }
+    let turns: Vec<bool> = (0..count).map(|c| outer[c] && volume6[c] < 0.0).collect();
+    let count = turns.iter().filter(|&&t| t).count();
+    (count > 0).then_some(BodyTurns {
+        component,
+        turns,
+        count,
+    })
 }
 
 /// Each edge's [`EdgePasses`], from one walk over every face's sides (in
@@ -270,6 +400,75 @@ mod tests {
         assert_eq!((o.turned_faces, o.inside_out), (5, true));
         assert_eq!(m, cube());
         assert!(m.signed_volume() > 0.0);
+    }
+
+    /// Cubes of the unit cube's faces, cube `k` scaled by `scale[k]` about
+    /// its centre and moved by `at[k]`, those in `inward` wound inside out.
+    fn cubes(at: &[DVec3], scale: &[f64], inward: &[usize]) -> Mesh {
+        let one = cube();
+        let mut p = Vec::new();
+        let mut polygons: Vec<Vec<u32>> = Vec::new();
+        for (k, (&at, &scale)) in at.iter().zip(scale).enumerate() {
+            let base = p.len() as u32;
+            p.extend(
+                one.positions()
+                    .iter()
+                    .map(|&q| (q - DVec3::splat(0.5)) * scale + at),
+            );
+            for face in one.faces() {
+                let mut c: Vec<u32> = face.iter().map(|&v| v + base).collect();
+                if inward.contains(&k) {
+                    c.reverse();
+                }
+                polygons.push(c);
+            }
+        }
+        Mesh::from_polygons(p, &polygons).unwrap()
+    }
+
+    #[test]
+    fn a_body_wound_inside_out_beside_an_outward_one_turns_alone() {
+        let apart = [DVec3::ZERO, DVec3::new(3.0, 0.0, 0.0)];
+        // The second body alone is inside out; both enclose the same
+        // volume, so the whole's volume says nothing.
+        let (o, m) = oriented(&cubes(&apart, &[1.0, 1.0], &[1]));
+        assert_eq!(
+            (o.turned_faces, o.inside_out, o.inside_out_bodies),
+            (6, false, 1)
+        );
+        assert_eq!((o.inside_out_body_faces, o.seams), (6, 0));
+        assert_eq!(m, cubes(&apart, &[1.0, 1.0], &[]));
+        // The first alone: the same.
+        let (o, m) = oriented(&cubes(&apart, &[1.0, 2.0], &[0]));
+        assert_eq!((o.inside_out, o.inside_out_bodies), (false, 1));
+        assert_eq!(m, cubes(&apart, &[1.0, 2.0], &[]));
+        // Both: the whole turns, as one body would.
+        let (o, _) = oriented(&cubes(&apart, &[1.0, 1.0], &[0, 1]));
+        assert_eq!(
+            (o.turned_faces, o.inside_out, o.inside_out_bodies),
+            (12, true, 0)
+        );
+    }
+
+    #[test]
+    fn a_body_inside_another_keeps_its_winding() {
+        let nested = [DVec3::ZERO, DVec3::ZERO];
+        // A hollow cube, its cavity wound inward: nothing turns.
+        let hollow = cubes(&nested, &[3.0, 1.0], &[1]);
+        assert!(oriented(&hollow).0.is_identity());
+        // The same written inside out as a whole: the whole turns back, the
+        // cavity with it.
+        let (o, m) = oriented(&cubes(&nested, &[3.0, 1.0], &[0]));
+        assert_eq!((o.inside_out, o.inside_out_bodies), (true, 0));
+        assert_eq!(m, hollow);
+        // A body wound outward inside another (a nucleus in its cell) stays.
+        assert!(oriented(&cubes(&nested, &[3.0, 1.0], &[])).0.is_identity());
+        // Beside an outward body, a hollow cube written inside out: its
+        // outer wall turns, and its cavity, inside it, keeps its winding.
+        let three = [DVec3::ZERO, DVec3::ZERO, DVec3::new(5.0, 0.0, 0.0)];
+        let (o, m) = oriented(&cubes(&three, &[3.0, 1.0, 1.0], &[0, 1]));
+        assert_eq!((o.inside_out, o.inside_out_bodies), (false, 1));
+        assert_eq!(m, cubes(&three, &[3.0, 1.0, 1.0], &[1]));
     }
 
     #[test]

@@ -22,7 +22,7 @@ use sha2::{Digest, Sha256};
 /// Version of the report's JSON schema: the major number changes when a
 /// field is removed or changes meaning, the minor number when fields are
 /// added.
-pub const SCHEMA_VERSION: &str = "2.8";
+pub const SCHEMA_VERSION: &str = "2.9";
 
 /// Width of one angle-histogram bin, in degrees.
 pub const ANGLE_BIN_DEG: f64 = 5.0;
@@ -294,6 +294,17 @@ pub struct MeshStatistics {
     /// out and every face was turned. Since schema 2.6.
     #[serde(default)]
     pub inside_out: bool,
+    /// Bodies (connected parts of a closed mesh) wound inside out on their
+    /// own and turned whole, beside bodies wound outward: each enclosed a
+    /// negative volume and lay inside no other body (a body inside another
+    /// keeps its winding, as it may be a cavity). Never with `inside_out`.
+    /// Since schema 2.9.
+    #[serde(default)]
+    pub inside_out_bodies: u64,
+    /// Faces of those bodies (included in `reoriented_faces`). Since schema
+    /// 2.9.
+    #[serde(default)]
+    pub inside_out_body_faces: u64,
     /// Edges between two faces that still wind it the same way after the
     /// turns: a surface that cannot be oriented (a Moebius strip). Since
     /// schema 2.6.
@@ -325,12 +336,14 @@ pub struct MeshStatistics {
 
 impl MeshStatistics {
     /// Faces the file winds against their neighbours: `reoriented_faces`,
-    /// less the whole mesh's turn when it was inside out.
+    /// less the whole mesh's turn when it was inside out, or less the
+    /// bodies turned whole.
     pub fn faces_wound_against(&self) -> u64 {
         if self.inside_out {
             self.faces.saturating_sub(self.reoriented_faces)
         } else {
             self.reoriented_faces
+                .saturating_sub(self.inside_out_body_faces)
         }
     }
 }
