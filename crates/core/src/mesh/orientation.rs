@@ -271,7 +271,7 @@ fn inside_out_bodies(mesh: &Mesh, topo: &Topology, turned: &[bool]) -> Option<Bo
     let turns: Vec<bool> = (0..count).map(|c| outer[c] && volume6[c] < 0.0).collect();
     let count = turns.iter().filter(|&&t| t).count();
     (count > 0).then_some(BodyTurns {
-        component,
+        component: component.to_vec(),
         turns,
         count,
     })

@@ -7,6 +7,7 @@
 use super::Mesh;
 use rayon::prelude::*;
 use serde::Serialize;
+use std::sync::OnceLock;
 
 /// How a vertex sits in the surface.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize)]
@@ -44,6 +45,10 @@ pub struct Topology {
     ef: Vec<u32>,
     kinds: Vec<VertexKind>,
     degenerate_faces: usize,
+    /// [`Topology::component_ids`], found once on first use: the analysis,
+    /// every stage's measures, the volume restoration and the passes all
+    /// ask, and each would otherwise walk a union-find over every edge.
+    components: OnceLock<(Vec<u32>, usize)>,
 }
 
 impl Topology {
@@ -242,43 +247,39 @@ impl Topology {
     /// Connected components of the vertex graph, not counting isolated
     /// vertices.
     pub fn num_components(&self) -> usize {
-        let parent = self.component_roots();
-        let isolated = self.count_kind(VertexKind::Isolated);
-        parent
-            .iter()
-            .enumerate()
-            .filter(|&(i, &p)| p as usize == i)
-            .count()
-            - isolated
+        self.component_ids().1 - self.count_kind(VertexKind::Isolated)
     }
 
     /// For each vertex, the number of vertices of its connected component
     /// (1 for an isolated vertex).
     pub fn component_sizes(&self) -> Vec<u32> {
-        let roots = self.component_roots();
-        let mut size = vec![0u32; roots.len()];
-        for &r in &roots {
-            size[r as usize] += 1;
+        let (ids, count) = self.component_ids();
+        let mut size = vec![0u32; count];
+        for &c in ids {
+            size[c as usize] += 1;
         }
-        roots.iter().map(|&r| size[r as usize]).collect()
+        ids.iter().map(|&c| size[c as usize]).collect()
     }
 
     /// Each vertex's connected component, numbered from 0 in the order of
     /// the components' lowest vertex, and the number of components
     /// (isolated vertices count as components of their own).
-    pub fn component_ids(&self) -> (Vec<u32>, usize) {
-        let roots = self.component_roots();
-        let mut id = vec![u32::MAX; roots.len()];
-        let mut count = 0u32;
-        for v in 0..roots.len() {
-            let r = roots[v] as usize;
-            if id[r] == u32::MAX {
-                id[r] = count;
-                count += 1;
+    pub fn component_ids(&self) -> (&[u32], usize) {
+        let (ids, count) = self.components.get_or_init(|| {
+            let roots = self.component_roots();
+            let mut id = vec![u32::MAX; roots.len()];
+            let mut count = 0u32;
+            for v in 0..roots.len() {
+                let r = roots[v] as usize;
+                if id[r] == u32::MAX {
+                    id[r] = count;
+                    count += 1;
+                }
+                id[v] = id[r];
             }
-            id[v] = id[r];
-        }
-        (id, count as usize)
+            (id, count as usize)
+        });
+        (ids, *count)
     }
 
     /// Each vertex's component as one root vertex (union-find over the
@@ -422,6 +423,7 @@ impl Topology {
             ef,
             kinds: Vec::new(),
             degenerate_faces,
+            components: OnceLock::new(),
         }
     }
 }

@@ -114,7 +114,7 @@ impl VolumeParts {
     /// as one body.
     pub fn new(mesh: &Mesh, topo: &Topology, bodies: Option<&[u32]>) -> Self {
         let (component, count) = topo.component_ids();
-        let component_volumes = part_volumes(mesh, mesh.positions(), &component, count);
+        let component_volumes = part_volumes(mesh, mesh.positions(), component, count);
         let bodies = bodies.filter(|b| b.len() == component.len());
         let mut body_of = vec![0u32; count];
         if let Some(bodies) = bodies {
@@ -136,7 +136,7 @@ impl VolumeParts {
         VolumeParts {
             part_of,
             targets,
-            component,
+            component: component.to_vec(),
             component_volumes,
             collapse_offset: MAX_VOLUME_OFFSET * mesh.mean_edge_length(),
             smooth_surface: false,
