@@ -618,6 +618,43 @@ fn vertex_results_go_into_ply_and_glb_outputs() {
 }
 
 #[test]
+fn a_part_wound_inside_out_beside_an_outward_one_is_named_and_turned() {
+    let dir = scratch("a_part_wound_inside_out");
+    let (_, mesh, _) = sphere_file(&dir);
+    // The sphere twice, apart, the second wound inside out.
+    let n = mesh.num_vertices() as u32;
+    let span = mesh
+        .positions()
+        .iter()
+        .fold(0.0f64, |m, p| m.max(p.x.abs()));
+    let mut positions = mesh.positions().to_vec();
+    positions.extend(
+        mesh.positions()
+            .iter()
+            .map(|p| *p + glam::DVec3::new(4.0 * span, 0.0, 0.0)),
+    );
+    let mut polygons = faces(&mesh);
+    polygons.extend(faces(&mesh).into_iter().map(|c| {
+        let mut c: Vec<u32> = c.iter().map(|&v| v + n).collect();
+        c.reverse();
+        c
+    }));
+    let two = Mesh::from_polygons(positions, &polygons).unwrap();
+    let mut bytes = Vec::new();
+    write_obj_plain(&two, two.positions(), &mut bytes).unwrap();
+    let input = dir.join("two.obj");
+    std::fs::write(&input, &bytes).unwrap();
+    let table = report_table(&input);
+    assert!(
+        table.contains(&format!(
+            "winding          1 of its closed parts inside out beside outward ones ({} faces,",
+            mesh.num_faces()
+        )),
+        "{table}"
+    );
+}
+
+#[test]
 fn faces_wound_against_their_neighbours_smooth_as_wound_outward() {
     let dir = scratch("faces_wound_against_their_neighbours");
     let (input, mesh, _) = sphere_file(&dir);

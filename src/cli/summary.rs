@@ -183,6 +183,12 @@ fn winding(m: &MeshStatistics) -> String {
     if m.inside_out {
         parts.push("inside out (measured turned)".to_owned());
     }
+    if m.inside_out_bodies > 0 {
+        parts.push(format!(
+            "{} of its closed parts inside out beside outward ones ({} faces, measured turned)",
+            m.inside_out_bodies, m.inside_out_body_faces
+        ));
+    }
     let against = m.faces_wound_against();
     if against > 0 {
         parts.push(format!(
