@@ -15,9 +15,8 @@
 //! merged from two writers) turns each body that encloses a negative
 //! volume and lies within no other body's bounding box
 //! ([`inside_out_bodies`]): a body inside another may be a cavity, wound
-//! inward on purpose. A mesh already
-//! wound consistently and outward gets no turn, so its run is the same as
-//! without this step.
+//! inward on purpose. A mesh already wound consistently and outward gets
+//! no turn, so its run is the same as without this step.
 
 use super::{Mesh, Topology, cone_volume6};
 use glam::DVec3;
@@ -151,15 +150,18 @@ fn turn_outward(
     let is_turned = |turned: &[bool], f: usize| turned.get(f).copied().unwrap_or(false);
     let mut inside_out_bodies = 0;
     let mut inside_out_body_faces = 0;
-    if closed && let Some(bodies) = self::inside_out_bodies(mesh, topo, &turned) {
+    if closed && let Some(turns) = self::inside_out_bodies(mesh, topo, &turned) {
+        let (component, _) = topo.component_ids();
         turned.resize(n, false);
         for (f, t) in turned.iter_mut().enumerate() {
-            if bodies.turns(mesh, f) {
+            if let Some(&first) = mesh.face(f).first()
+                && turns[component[first as usize] as usize]
+            {
                 *t = !*t;
                 inside_out_body_faces += 1;
             }
         }
-        inside_out_bodies = bodies.count;
+        inside_out_bodies = turns.iter().filter(|&&t| t).count();
     }
     let volume6: f64 = (0..n)
         .map(|f| {
@@ -191,39 +193,17 @@ fn turn_outward(
 /// bodies keeps the file's winding rather than cost more than linear time.
 const NESTING_WORK: usize = 8;
 
-/// The bodies [`inside_out_bodies`] turns: per vertex-connected component.
-struct BodyTurns {
-    /// Per vertex, its component.
-    component: Vec<u32>,
-    /// Per component, whether it turns.
-    turns: Vec<bool>,
-    /// Components that turn.
-    count: usize,
-}
-
-impl BodyTurns {
-    /// Whether face `f` belongs to a turning body.
-    fn turns(&self, mesh: &Mesh, f: usize) -> bool {
-        mesh.face(f).first().is_some_and(|&v| {
-            self.component
-                .get(v as usize)
-                .and_then(|&c| self.turns.get(c as usize))
-                .copied()
-                .unwrap_or(false)
-        })
-    }
-}
-
-/// The bodies of a closed `mesh` (its faces `turned` as given, empty for
-/// none) wound inside out on their own: a body (a vertex-connected
-/// component) that encloses a negative volume and whose bounding box lies
+/// Per component of `topo` ([`Topology::component_ids`]), whether it is a
+/// body of a closed `mesh` (its faces `turned` as given, empty for none)
+/// wound inside out on its own: a body (a vertex-connected component) that
+/// encloses a negative volume and whose bounding box lies
 /// in no other body's, where some other body so placed is wound outward.
 /// `None` when there is nothing to turn: one body, every body outward, or
 /// every such outermost body inside out (the whole mesh turns then,
 /// cavities included). A body within another's box keeps its winding: it
 /// may be a cavity, wound inward on purpose, or a body of its own (a
 /// nucleus in its cell), and the winding is all that tells the two apart.
-fn inside_out_bodies(mesh: &Mesh, topo: &Topology, turned: &[bool]) -> Option<BodyTurns> {
+fn inside_out_bodies(mesh: &Mesh, topo: &Topology, turned: &[bool]) -> Option<Vec<bool>> {
     let (component, count) = topo.component_ids();
     if count < 2 {
         return None;
@@ -269,12 +249,7 @@ fn inside_out_bodies(mesh: &Mesh, topo: &Topology, turned: &[bool]) -> Option<Bo
         return None;
     }
     let turns: Vec<bool> = (0..count).map(|c| outer[c] && volume6[c] < 0.0).collect();
-    let count = turns.iter().filter(|&&t| t).count();
-    (count > 0).then_some(BodyTurns {
-        component: component.to_vec(),
-        turns,
-        count,
-    })
+    turns.contains(&true).then_some(turns)
 }
 
 /// Each edge's [`EdgePasses`], from one walk over every face's sides (in
