@@ -237,8 +237,9 @@ pub struct Params {
     /// `sqrt(3)/2` voxel); any other vertex within a ball of this many of
     /// its mean input edge lengths. A vertex of a marching-cubes
     /// mesh of a mask is also held, across the surface, where the surface
-    /// crosses its lattice edge within this many voxel spacings of its
-    /// midpoint (0.5: between the edge's two voxel centres). Every smoothing
+    /// crosses its lattice edge within 0.85 of this many voxel spacings of
+    /// its midpoint (0.5: between the edge's two voxel centres, 0.075
+    /// spacing short of each). Every smoothing
     /// pass, the volume restoration and the quality fixes keep to it; the
     /// report counts the vertices it held back. `null` lets vertices move
     /// freely.
