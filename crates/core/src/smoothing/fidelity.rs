@@ -38,7 +38,8 @@
 //! axis (box), times the vertex's mean input edge length (ball) or times the
 //! voxel spacing (slab): 0.5 gives the dual voxel on a lattice, so no vertex
 //! of a voxel mesh moves more than `sqrt(3) / 2` voxel, and the lattice edge
-//! on a marching-cubes mesh, whose ball is also at most `max_displacement`
+//! short of its voxel centres ([`CROSSING_SHARE`]) on a marching-cubes
+//! mesh, whose ball is also at most `max_displacement`
 //! spacings of the vertex's edge (the quality fixes get twice the ball,
 //! capped at twice `max_displacement` spacings along each axis where the
 //! spacing differs by axis, or on a lattice the ellipsoid of twice the
