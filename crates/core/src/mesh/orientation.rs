@@ -147,29 +147,29 @@ fn turn_outward(
     seams: usize,
 ) -> Orientation {
     let n = mesh.num_faces();
-    let is_turned = |turned: &[bool], f: usize| turned.get(f).copied().unwrap_or(false);
     let mut inside_out_bodies = 0;
     let mut inside_out_body_faces = 0;
-    if closed && let Some(turns) = self::inside_out_bodies(mesh, topo, &turned) {
-        let (component, _) = topo.component_ids();
-        turned.resize(n, false);
-        for (f, t) in turned.iter_mut().enumerate() {
-            if let Some(&first) = mesh.face(f).first()
-                && turns[component[first as usize] as usize]
-            {
-                *t = !*t;
-                inside_out_body_faces += 1;
+    let mut inside_out = false;
+    if closed {
+        let (component, count) = topo.component_ids();
+        let mut bodies = BodyVolumes::of(mesh, component, count, &turned);
+        if let Some(turns) = self::inside_out_bodies(mesh, component, &bodies) {
+            turned.resize(n, false);
+            for (f, t) in turned.iter_mut().enumerate() {
+                if let Some(&first) = mesh.face(f).first()
+                    && turns[component[first as usize] as usize]
+                {
+                    *t = !*t;
+                    inside_out_body_faces += 1;
+                }
             }
+            for (v, _) in bodies.volume6.iter_mut().zip(&turns).filter(|(_, t)| **t) {
+                *v = -*v;
+            }
+            inside_out_bodies = turns.iter().filter(|&&t| t).count();
         }
-        inside_out_bodies = turns.iter().filter(|&&t| t).count();
+        inside_out = bodies.volume6.iter().sum::<f64>() < 0.0;
     }
-    let volume6: f64 = (0..n)
-        .map(|f| {
-            let v = cone_volume6(mesh.face(f), mesh.positions());
-            if is_turned(&turned, f) { -v } else { v }
-        })
-        .sum();
-    let inside_out = closed && volume6 < 0.0;
     if inside_out {
         turned.resize(n, false);
         for t in &mut turned {
@@ -193,54 +193,72 @@ fn turn_outward(
 /// bodies keeps the file's winding rather than cost more than linear time.
 const NESTING_WORK: usize = 8;
 
-/// Per component of `topo` ([`Topology::component_ids`]), whether it is a
-/// body of a closed `mesh` (its faces `turned` as given, empty for none)
-/// wound inside out on its own: a body (a vertex-connected component) that
-/// encloses a negative volume and whose bounding box lies
-/// in no other body's, where some other body so placed is wound outward.
-/// `None` when there is nothing to turn: one body, every body outward, or
-/// every such outermost body inside out (the whole mesh turns then,
-/// cavities included). A body within another's box keeps its winding: it
-/// may be a cavity, wound inward on purpose, or a body of its own (a
-/// nucleus in its cell), and the winding is all that tells the two apart.
-fn inside_out_bodies(mesh: &Mesh, topo: &Topology, turned: &[bool]) -> Option<Vec<bool>> {
-    let (component, count) = topo.component_ids();
-    if count < 2 {
+/// Six times the signed volume each connected component encloses, its
+/// faces turned as given (empty: none), and whether it has faces (an
+/// isolated vertex is a component of its own, with none).
+struct BodyVolumes {
+    volume6: Vec<f64>,
+    has_faces: Vec<bool>,
+}
+
+impl BodyVolumes {
+    /// The volumes of the `count` components `component` numbers
+    /// ([`Topology::component_ids`]), each face counted in its first
+    /// corner's component.
+    fn of(mesh: &Mesh, component: &[u32], count: usize, turned: &[bool]) -> Self {
+        let p = mesh.positions();
+        let mut volume6 = vec![0.0f64; count];
+        let mut has_faces = vec![false; count];
+        for (f, face) in mesh.faces().enumerate() {
+            let Some(&first) = face.first() else {
+                continue;
+            };
+            let c = component[first as usize] as usize;
+            let v = cone_volume6(face, p);
+            volume6[c] += if turned.get(f).copied().unwrap_or(false) {
+                -v
+            } else {
+                v
+            };
+            has_faces[c] = true;
+        }
+        BodyVolumes { volume6, has_faces }
+    }
+}
+
+/// Per component (`component`, one id per vertex), whether it is a body of
+/// a closed `mesh` wound inside out on its own: a body (a vertex-connected
+/// component, with its volume in `bodies`) that encloses a negative volume
+/// and whose bounding box lies in no other body's, where some other body
+/// so placed is wound outward. `None` when there is nothing to turn: one
+/// body, every body outward, or every such outermost body inside out (the
+/// whole mesh turns then, cavities included). A body within another's box
+/// keeps its winding: it may be a cavity, wound inward on purpose, or a
+/// body of its own (a nucleus in its cell), and the winding is all that
+/// tells the two apart.
+fn inside_out_bodies(mesh: &Mesh, component: &[u32], bodies: &BodyVolumes) -> Option<Vec<bool>> {
+    let BodyVolumes { volume6, has_faces } = bodies;
+    let count = volume6.len();
+    if count < 2 || volume6.iter().all(|&v| v >= 0.0) {
         return None;
     }
     let p = mesh.positions();
-    let mut volume6 = vec![0.0f64; count];
-    let mut has_faces = vec![false; count];
-    for (f, face) in mesh.faces().enumerate() {
-        let Some(&first) = face.first() else {
-            continue;
-        };
-        let c = component[first as usize] as usize;
-        let v = cone_volume6(face, p);
-        volume6[c] += if turned.get(f).copied().unwrap_or(false) {
-            -v
-        } else {
-            v
-        };
-        has_faces[c] = true;
-    }
-    if volume6.iter().all(|&v| v >= 0.0) {
-        return None;
-    }
     let mut lo = vec![DVec3::INFINITY; count];
     let mut hi = vec![DVec3::NEG_INFINITY; count];
     for (v, &c) in component.iter().enumerate() {
         lo[c as usize] = lo[c as usize].min(p[v]);
         hi[c as usize] = hi[c as usize].max(p[v]);
     }
-    let bodies: Vec<usize> = (0..count).filter(|&c| has_faces[c]).collect();
-    if bodies.len().saturating_mul(bodies.len()) > NESTING_WORK.saturating_mul(mesh.num_faces()) {
+    let with_faces: Vec<usize> = (0..count).filter(|&c| has_faces[c]).collect();
+    if with_faces.len().saturating_mul(with_faces.len())
+        > NESTING_WORK.saturating_mul(mesh.num_faces())
+    {
         return None;
     }
     let outer: Vec<bool> = (0..count)
         .map(|c| {
             has_faces[c]
-                && !bodies
+                && !with_faces
                     .iter()
                     .any(|&d| d != c && lo[d].cmple(lo[c]).all() && hi[d].cmpge(hi[c]).all())
         })
