@@ -131,6 +131,20 @@ def defaults(binary):
     }
 
 
+def reference_peers():
+    """The three peers the other scripts set beside meshsmooth: VTK windowed
+    sinc at 3D Slicer's defaults, two PyMeshLab cotangent Laplacian steps
+    (the peer setting closest to the truth on the real masks) and
+    PyMeshLab's Taubin at its defaults."""
+    return {
+        "VTK windowed sinc (Slicer: 20 it, pass band 0.1)": pyvista_filter("smooth_taubin", n_iter=20, pass_band=0.1),
+        "PyMeshLab cotangent Laplacian (2 steps)": pymeshlab_filter(
+            "apply_coord_laplacian_smoothing", stepsmoothnum=2, cotangentweight=True
+        ),
+        "PyMeshLab Taubin (10 steps)": pymeshlab_filter("apply_coord_taubin_smoothing"),
+    }
+
+
 def sweep():
     """Peer settings over iteration counts and strengths: the best truth any
     setting of any peer reaches is the bar."""

@@ -74,15 +74,7 @@ def main():
     ap.add_argument("--binary", default=str(ROOT / "target" / "release" / "meshsmooth"))
     ap.add_argument("--only", default="", help="comma-separated names: wm, wm_mc, gm")
     args = ap.parse_args()
-    tools = {
-        "input": lambda v, f: v,
-        "meshsmooth": cp.meshsmooth(args.binary),
-        "VTK windowed sinc (Slicer: 20 it, pass band 0.1)": cp.pyvista_filter("smooth_taubin", n_iter=20, pass_band=0.1),
-        "PyMeshLab Taubin (10 steps)": cp.pymeshlab_filter("apply_coord_taubin_smoothing"),
-        "PyMeshLab cotangent Laplacian (2 steps)": cp.pymeshlab_filter(
-            "apply_coord_laplacian_smoothing", stepsmoothnum=2, cotangentweight=True
-        ),
-    }
+    tools = {"input": lambda v, f: v, "meshsmooth": cp.meshsmooth(args.binary), **cp.reference_peers()}
     print("| mesh | tool | boundary centres | wrong side | inside left out | outside taken in |")
     print("|---|---|---|---|---|---|")
     for name, (mesh, prob) in MESHES.items():

@@ -131,14 +131,7 @@ def main():
     ap.add_argument("--binary", default=str(ROOT / "target" / "release" / "meshsmooth"))
     ap.add_argument("--only", default="", help="comma-separated names, e.g. wm_softmc,gm_decimc")
     args = ap.parse_args()
-    tools = {
-        "meshsmooth": cp.meshsmooth(args.binary),
-        "VTK windowed sinc (Slicer: 20 it, pass band 0.1)": cp.pyvista_filter("smooth_taubin", n_iter=20, pass_band=0.1),
-        "PyMeshLab cotangent Laplacian (2 steps)": cp.pymeshlab_filter(
-            "apply_coord_laplacian_smoothing", stepsmoothnum=2, cotangentweight=True
-        ),
-        "PyMeshLab Taubin (10 steps)": cp.pymeshlab_filter("apply_coord_taubin_smoothing"),
-    }
+    tools = {"meshsmooth": cp.meshsmooth(args.binary), **cp.reference_peers()}
     print("| tool | flipped | twisted | angles<20 | min angle | max move | curv. var. | volume | truth RMS | time |")
     for key, (prob, margin) in MAPS.items():
         names = ("softmc", "softnoisy", "blurmc", "decimc", "surfnets", "surfnets_smooth", "flyingedges")
