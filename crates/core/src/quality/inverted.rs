@@ -163,7 +163,7 @@ pub(super) fn retreat_sweeps(
         found: left.len() as u64,
         ..Sweeps::default()
     };
-    let mut tester = MoveTester::bounded(bound);
+    let mut tester = MoveTester::bounded(bound).allowing_input_twists();
     let mut cluster = Cluster::default();
     let bad = |f: u32, p: &[DVec3]| (rule.bad)(mesh.face(f as usize), p);
     // The corner subsets join only once the clusters' retreats are stuck:

@@ -139,13 +139,16 @@ pub(crate) fn is_twisted(face: &[u32], positions: &[DVec3]) -> bool {
 
 /// A face is inverted relative to the input when its vector area, or the
 /// normal of any of its split triangles, points against the same quantity
-/// in `input` (negative dot product).
+/// in `input` (negative dot product). A quad the input has twisted is
+/// judged by its vector area alone: its split triangles face opposite ways
+/// in the input, so no untwisted position keeps both, and the quad's
+/// orientation is its vector area's.
 #[inline]
 pub(crate) fn is_inverted(face: &[u32], positions: &[DVec3], input: &[DVec3]) -> bool {
     if vector_area(face, positions).dot(vector_area(face, input)) < 0.0 {
         return true;
     }
-    if face.len() == 3 {
+    if face.len() == 3 || is_twisted(face, input) {
         return false;
     }
     let (o, o0) = (positions[face[0] as usize], input[face[0] as usize]);
@@ -242,6 +245,9 @@ fn face_state_at(
 ) -> FaceState {
     let o = pos(face[0]);
     let k = face.len();
+    // A quad the input has twisted: its vector area alone says whether it
+    // is inverted (see `is_inverted`).
+    let split_oriented = k > 3 && !(k == 4 && input_normals[0].dot(input_normals[1]) < 0.0);
     let mut sum = DVec3::ZERO;
     let mut first = DVec3::ZERO;
     let mut inverted = false;
@@ -252,7 +258,7 @@ fn face_state_at(
         let a = pos(face[j]);
         let b = pos(face[j + 1]);
         let n = (a - o).cross(b - o);
-        if k > 3 {
+        if split_oriented {
             inverted |= n.dot(input_normals[j - 1]) < 0.0;
         }
         if j == 1 {
@@ -384,6 +390,12 @@ pub(crate) struct MoveTester {
     /// Per face of `faces`, the cosine of the smallest angle an
     /// angle-only move may leave it ([`input_sliver_floor`]; 1 for none).
     input_floor: Vec<f64>,
+    /// Per face of `faces`, whether it is a quad the input already had
+    /// twisted and the tester lets it twist again
+    /// ([`MoveTester::allowing_input_twists`]).
+    input_twist: Vec<bool>,
+    /// Whether a quad the input had twisted may be twisted again.
+    input_twists_allowed: bool,
     /// Cosine of the angle below which an input face is a sliver
     /// ([`MoveTester::guarding`]).
     guard: Option<f64>,
@@ -421,6 +433,20 @@ impl MoveTester {
         }
     }
 
+    /// The same tester, for moves back toward the input: a quad the input
+    /// already had twisted may end twisted again, and neither counts among
+    /// the twisted quads nor makes a move a new defect. Going back toward
+    /// the input restores the input's own state there; without this, a
+    /// fold next to a twisted quad of the input (a subdivision cage's
+    /// degenerate strip, which the twisted-quad fix untwisted) cannot go
+    /// back, since every retreat twists that quad again.
+    pub fn allowing_input_twists(self) -> Self {
+        MoveTester {
+            input_twists_allowed: true,
+            ..self
+        }
+    }
+
     /// Collects the faces around `vertices` (each once, skipping faces with
     /// a repeated corner) and records their state; `cos_goal` is the cosine
     /// of the angle goal the deficits are measured against (1 for none).
@@ -441,6 +467,7 @@ impl MoveTester {
         self.input_normals.clear();
         self.before.clear();
         self.input_floor.clear();
+        self.input_twist.clear();
         self.frozen = !vertices.iter().all(|&v| fixable(mesh, topo, v));
         if self.frozen {
             return;
@@ -472,12 +499,12 @@ impl MoveTester {
             let start = self.input_normals.len();
             self.starts.push(start as u32);
             push_split_normals(face, input, &mut self.input_normals);
-            self.before.push(face_state_with(
-                face,
-                positions,
-                &self.input_normals[start..],
-                cos_goal,
-            ));
+            let normals = &self.input_normals[start..];
+            self.input_twist.push(
+                self.input_twists_allowed && face.len() == 4 && normals[0].dot(normals[1]) < 0.0,
+            );
+            self.before
+                .push(face_state_with(face, positions, normals, cos_goal));
         }
     }
 
@@ -544,15 +571,21 @@ impl MoveTester {
                     .is_some_and(|(_, &o)| !bound.allows(w, o, p))
             });
         }
-        for (((&f, b), &start), &input_floor) in self
+        for ((((&f, b), &start), &input_floor), &input_twist) in self
             .faces
             .iter()
             .zip(&self.before)
             .zip(&self.starts)
             .zip(&self.input_floor)
+            .zip(&self.input_twist)
         {
             let normals = &self.input_normals[start as usize..];
-            let a = face_state_at(mesh.face(f as usize), pos, normals, self.cos_goal);
+            let mut a = face_state_at(mesh.face(f as usize), pos, normals, self.cos_goal);
+            let mut b = *b;
+            if input_twist {
+                a.twisted = false;
+                b.twisted = false;
+            }
             verdict.new_fold_or_jump |= (a.inverted && !b.inverted) || (a.twisted && !b.twisted);
             if a.wide_cos < b.wide_cos.min(WIDEST_CORNER_COS) {
                 verdict.opened_corner_cos = verdict.opened_corner_cos.min(a.wide_cos);
@@ -961,6 +994,63 @@ mod tests {
         assert!(s.inverted && !s.twisted);
         assert!((s.max_cos - 45f64.to_radians().cos()).abs() < 1e-12);
         assert!(s.wide_cos.abs() < 1e-12, "square corners are 90°");
+    }
+
+    /// A quad folded along its diagonal 0-2 past a right angle (its two
+    /// split triangles face opposite ways: twisted), and the same quad
+    /// unfolded by its corner 3 moving across the diagonal.
+    fn twisted_and_unfolded() -> (Vec<DVec3>, Vec<DVec3>) {
+        let input = vec![
+            DVec3::ZERO,
+            DVec3::new(1.0, -1.0, 0.0),
+            DVec3::new(2.0, 0.0, 0.0),
+            DVec3::new(1.0, -0.5, -1.0),
+        ];
+        let mut open = input.clone();
+        open[3] = DVec3::new(1.0, 0.5, -0.2);
+        (input, open)
+    }
+
+    #[test]
+    fn a_quad_the_input_twisted_is_inverted_by_its_vector_area_alone() {
+        let (input, open) = twisted_and_unfolded();
+        let face = [0u32, 1, 2, 3];
+        assert!(is_twisted(&face, &input));
+        // Unfolded, the second split triangle turns against the input's,
+        // the quad's vector area does not.
+        assert!(!is_twisted(&face, &open));
+        assert!(!is_inverted(&face, &open, &input));
+        assert!(!face_state(&face, &open, &input).inverted);
+        // Mirrored across the plane y = 0, its vector area turns too.
+        let mirrored: Vec<DVec3> = open.iter().map(|p| DVec3::new(p.x, -p.y, p.z)).collect();
+        assert!(is_inverted(&face, &mirrored, &input));
+        assert!(face_state(&face, &mirrored, &input).inverted);
+        // A quad the input had sound still counts each split triangle.
+        let flat = [DVec3::ZERO, DVec3::X, DVec3::new(1.0, 1.0, 0.0), DVec3::Y];
+        let mut folded = flat;
+        folded[3] = DVec3::new(0.9, 0.2, 0.0);
+        assert!(is_inverted(&face, &folded, &flat));
+    }
+
+    #[test]
+    fn a_retreat_may_twist_again_a_quad_the_input_had_twisted() {
+        let (input, open) = twisted_and_unfolded();
+        let m = Mesh::from_polygons(input.clone(), &[[0u32, 1, 2, 3]]).expect("one quad");
+        let t = Topology::build(&m);
+        let back = [(3, input[3])];
+        let mut plain = MoveTester::default();
+        plain.begin(&m, &t, &[3], &open, &input, 1.0);
+        plain.reaching_input(&open, &input);
+        let verdict = plain.judge(&m, &back, &open);
+        assert!(verdict.new_fold_or_jump && verdict.twisted == (0, 1));
+        let mut retreating = MoveTester::default().allowing_input_twists();
+        retreating.begin(&m, &t, &[3], &open, &input, 1.0);
+        retreating.reaching_input(&open, &input);
+        let verdict = retreating.judge(&m, &back, &open);
+        assert!(
+            !verdict.new_defect && verdict.twisted == (0, 0),
+            "{verdict:?}"
+        );
     }
 
     #[test]

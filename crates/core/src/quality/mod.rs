@@ -8,7 +8,9 @@
 //! the non-manifold vertices the voxel relaxation moved; the sharp-angle
 //! fix, once its interior moves are spent, the non-manifold vertices too),
 //! and keep a move only when it makes nothing worse: no face becomes
-//! inverted relative to the input, no quad becomes twisted, no quad corner
+//! inverted relative to the input, no quad becomes twisted (but that a
+//! move back toward the input may twist again a quad the input had
+//! twisted, whose orientation is its vector area's alone), no quad corner
 //! divided by the triangle split opens beyond 160° (or beyond its angle
 //! before; the twisted-quad fix's last resort allows 170°), no defect
 //! count grows, and the smallest split-triangle angle of the affected
