@@ -254,15 +254,17 @@ pub struct Params {
     /// `wang_yu.input_noise`). Such a mesh may already be smooth, and the
     /// passes' fits would reshape its folds; independent noise of standard
     /// deviation `sigma` gives an estimate of about `0.85 sigma`, so the
-    /// default 4 lets a vertex move three to four standard deviations of
-    /// it. The distance across is measured from the input's own quadric
+    /// default 2 lets a vertex move 1.7 standard deviations of it: the
+    /// noise is taken out but for its tails, and a move farther across is
+    /// the fits reshaping the surface (on the meshes of real probability
+    /// maps, their folds), not noise (`docs/tuning.md`). The distance across is measured from the input's own quadric
     /// through the vertex, so moves along a curved surface are free (within
     /// `max_displacement`). After the
     /// passes, the move across that a vertex shares with its 1-ring (the
     /// fits' bias, which flattens folds; noise averages out over a ring) is
     /// taken back. Needs `max_displacement`; `null` holds such vertices in
     /// its ball alone and takes nothing back.
-    /// Default 4; range 0 < k <= 100.
+    /// Default 2; range 0 < k <= 100.
     pub noise_bound: Option<f64>,
     /// What boundary vertices do. Default `fixed`.
     pub boundary: BoundaryRule,
@@ -341,7 +343,7 @@ impl Default for Params {
             lattice_shape_passes: 0,
             lattice_lowpass_steps: 4,
             max_displacement: Some(0.5),
-            noise_bound: Some(4.0),
+            noise_bound: Some(2.0),
             boundary: BoundaryRule::Fixed,
             preserve_volume: true,
             weld: None,

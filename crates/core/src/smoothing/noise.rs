@@ -26,9 +26,10 @@
 //! the spread the fit's own prediction error adds, which ten coefficients
 //! widen more than six). A vertex may then move across its input surface
 //! by [`Params::noise_bound`] times that estimate (times its own mean edge):
-//! the default 4 is three to four standard deviations of such noise, which
-//! lets the passes take out the noise and keeps them from reshaping a
-//! surface that has none. Along the surface the ball of the bound still
+//! the default 2 is 1.7 standard deviations of such noise, which lets the
+//! passes take out all but the noise's tails and keeps them from reshaping
+//! the surface beneath it: on a real map's mesh a move farther across is
+//! mostly the fits flattening a fold two or three edges across. Along the surface the ball of the bound still
 //! decides, and "across" is measured from the input's own quadric through
 //! the input position (the quadric alone: its curvature at the vertex,
 //! without the cubic terms' tilt away from it), so a move along a curved
