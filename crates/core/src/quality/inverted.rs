@@ -17,7 +17,9 @@
 //! vertices move along the deep axis by more than an in-plane edge). When
 //! none is, the cluster takes in such
 //! vertices one ring further out and tries again, at most [`FOLD_WIDENINGS`]
-//! times. The result gives up a little smoothing where the fold was, and
+//! times, then as many times takes in the movable corners of the faces its
+//! full retreat would fold (on an input of slivers, where each new ring
+//! leaves such faces at its rim). The result gives up a little smoothing where the fold was, and
 //! only there. It runs after the sharp-angle fix, which opens most folds by
 //! single-vertex moves that keep the smoothing; on the synthetic shapes it
 //! leaves none, so this fix moves nothing there.
@@ -27,7 +29,7 @@
 //! the fix stops after a sweep that changes nothing, when none is left, or
 //! after `max_sweeps`. Only interior and non-manifold vertices move.
 
-use super::local::{MoveTester, Verdict, is_inverted};
+use super::local::{MoveTester, Verdict, has_repeated_corner, is_inverted};
 use crate::mesh::{Mesh, Topology, VertexKind};
 use crate::smoothing::fidelity::FidelityBound;
 use glam::DVec3;
@@ -93,6 +95,7 @@ pub fn fix_inverted_faces(
         accept: &|v| !v.new_defect && v.inverted.1 < v.inverted.0 && v.twisted.1 <= v.twisted.0,
         fallback: None,
         widenings: FOLD_WIDENINGS,
+        refold_growths: FOLD_WIDENINGS,
         corner_subsets: false,
     };
     let s = retreat_sweeps(mesh, topo, positions, input, bound, max_sweeps, &rule);
@@ -121,6 +124,10 @@ pub(super) struct RetreatRule<'r> {
     pub fallback: Option<&'r dyn Fn(&Verdict) -> bool>,
     /// How many times a cluster may take in one more ring of vertices.
     pub widenings: usize,
+    /// How many times, once its widenings are spent, a cluster may take in
+    /// the corners of the faces its full retreat would leave inverted
+    /// ([`Cluster::retreat_refolded`]); 0: never.
+    pub refold_growths: usize,
     /// Whether, once a sweep's cluster retreats moved nothing, the later
     /// sweeps also try, for a cluster no widening of which gives a kept
     /// move, the movable corners of the face it was gathered from in
@@ -206,6 +213,9 @@ pub(super) fn retreat_sweeps(
                 if moved.is_some() {
                     break;
                 }
+            }
+            if moved.is_none() && rule.refold_growths > 0 {
+                moved = cluster.retreat_refolded(mesh, topo, positions, input, &mut tester, rule);
             }
             if moved.is_none() && subsets {
                 moved = retreat_corner_subsets(
@@ -434,6 +444,90 @@ impl Cluster {
         None
     }
 
+    /// [`Cluster::retreat`] after taking in the movable corners of the
+    /// faces around the cluster that its full retreat would leave inverted,
+    /// at most `rule.refold_growths` times (and [`MAX_CLUSTER_VERTICES`]
+    /// vertices); judged by `rule.accept` alone.
+    ///
+    /// On an input full of slivers (an isosurface of a noisy image, whose
+    /// angles go down to a tenth of a degree) a fold's rings hold faces
+    /// whose orientation turns with a hundredth of an edge: each ring the
+    /// widenings take in leaves faces with some corners back at the input
+    /// and some not, which the retreat folds. The faces it folds say which
+    /// corners must come back with the cluster.
+    pub(super) fn retreat_refolded(
+        &mut self,
+        mesh: &Mesh,
+        topo: &Topology,
+        positions: &mut [DVec3],
+        input: &[DVec3],
+        tester: &mut MoveTester,
+        rule: &RetreatRule,
+    ) -> Option<usize> {
+        for _ in 0..rule.refold_growths {
+            if !self.take_in_refolded(mesh, topo, positions, input) {
+                break;
+            }
+            let moved = self.retreat(
+                mesh,
+                topo,
+                positions,
+                input,
+                tester,
+                rule.cos_goal,
+                rule.accept,
+            );
+            if moved.is_some() {
+                return moved;
+            }
+        }
+        None
+    }
+
+    /// Adds the movable corners of the faces around the cluster that are
+    /// inverted with every cluster vertex back at its input position (up to
+    /// [`MAX_CLUSTER_VERTICES`] in all); false when there is none to add.
+    /// `positions` are as they were on return.
+    fn take_in_refolded(
+        &mut self,
+        mesh: &Mesh,
+        topo: &Topology,
+        positions: &mut [DVec3],
+        input: &[DVec3],
+    ) -> bool {
+        self.moves.clear();
+        self.moves
+            .extend(self.vertices.iter().map(|&v| (v, positions[v])));
+        for &v in &self.vertices {
+            positions[v] = input[v];
+        }
+        let before = self.vertices.len();
+        let mut added = Vec::new();
+        for &v in &self.vertices {
+            for &f in topo.vertex_faces(v) {
+                let face = mesh.face(f as usize);
+                if has_repeated_corner(face) || !is_inverted(face, positions, input) {
+                    continue;
+                }
+                for &c in face {
+                    let c = c as usize;
+                    if movable(topo, c, positions, input)
+                        && !self.vertices.contains(&c)
+                        && !added.contains(&c)
+                    {
+                        added.push(c);
+                    }
+                }
+            }
+        }
+        for &(v, p) in &self.moves {
+            positions[v] = p;
+        }
+        let room = MAX_CLUSTER_VERTICES.saturating_sub(before);
+        self.vertices.extend(added.into_iter().take(room));
+        self.vertices.len() > before
+    }
+
     /// Tries the [`RETREATS`] of the cluster's vertices, smallest first,
     /// judged against the angle goal `cos_goal`; applies the first that
     /// `accept`s and returns how many vertices it moved.
@@ -475,14 +569,20 @@ mod tests {
     use crate::quality::is_defective;
     use crate::report::measure_stage;
 
+    /// A flat 6 x 6 grid, its topology, its positions, and two neighbours
+    /// along x in its middle row, (2, 3) and (3, 3).
+    fn grid_with_two_neighbours() -> (Mesh, Topology, Vec<DVec3>, usize, usize) {
+        let m = grid(6);
+        let t = Topology::build(&m);
+        let input = m.positions().to_vec();
+        (m, t, input, at(6, 2, 3), at(6, 3, 3))
+    }
+
     #[test]
     fn a_fold_of_two_vertices_goes_back_as_one() {
         // Two neighbours of a flat grid pushed past each other: the faces
         // around them fold, and both move back together.
-        let m = grid(6);
-        let t = Topology::build(&m);
-        let input = m.positions().to_vec();
-        let (a, b) = (at(6, 2, 3), at(6, 3, 3));
+        let (m, t, input, a, b) = grid_with_two_neighbours();
         let mut p = input.clone();
         p[a] = DVec3::new(3.6, 3.0, 0.0);
         p[b] = DVec3::new(2.4, 3.0, 0.0);
@@ -553,6 +653,41 @@ mod tests {
         let stats = fix_inverted_faces(&m, &t, &mut p, &input, None, 10);
         assert_eq!(stats, InvertedStats::default());
         assert_eq!(p, bumped);
+    }
+
+    #[test]
+    fn a_cluster_takes_in_the_corners_its_retreat_would_fold() {
+        // Vertex a moved left to x = 1.5, its right neighbour b to x = 1.8,
+        // beyond a's input (x = 2): nothing is folded, but a going back
+        // alone would land past b and fold the faces between them.
+        let (m, t, input, a, b) = grid_with_two_neighbours();
+        let mut p = input.clone();
+        p[a].x = 1.5;
+        p[b].x = 1.8;
+        let before = p.clone();
+        let mut cluster = Cluster::default();
+        cluster.set(&[a]);
+        assert!(cluster.take_in_refolded(&m, &t, &mut p, &input));
+        assert_eq!(cluster.vertices, vec![a, b]);
+        assert_eq!(p, before, "the trial is undone");
+        assert!(!cluster.take_in_refolded(&m, &t, &mut p, &input));
+        // The two go back together.
+        let rule = RetreatRule {
+            bad: &|face, q| is_inverted(face, q, &input),
+            cos_goal: 1.0,
+            accept: &|v| !v.new_defect,
+            fallback: None,
+            widenings: 0,
+            refold_growths: 1,
+            corner_subsets: false,
+        };
+        let mut tester = MoveTester::default();
+        cluster.set(&[a]);
+        assert_eq!(
+            cluster.retreat_refolded(&m, &t, &mut p, &input, &mut tester, &rule),
+            Some(2)
+        );
+        assert!((0..m.num_faces()).all(|f| !is_defective(&m, f, &p, &input)));
     }
 
     #[test]

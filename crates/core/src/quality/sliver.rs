@@ -95,6 +95,7 @@ pub fn fix_slivers(
         accept: &|v| clean(v) && v.max_cos.1 <= cos_floor,
         fallback: Some(&|v| clean(v) && v.max_cos.1 < v.max_cos.0),
         widenings: SLIVER_WIDENINGS,
+        refold_growths: 0,
         corner_subsets: true,
     };
     let s = retreat_sweeps(mesh, topo, positions, input, bound, max_sweeps, &rule);
