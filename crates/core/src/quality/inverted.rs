@@ -565,7 +565,7 @@ impl Cluster {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::quality::fixtures::{at, grid};
+    use crate::quality::fixtures::{at, grid, patch};
     use crate::quality::is_defective;
     use crate::report::measure_stage;
 
@@ -687,6 +687,18 @@ mod tests {
             cluster.retreat_refolded(&m, &t, &mut p, &input, &mut tester, &rule),
             Some(2)
         );
+        assert!((0..m.num_faces()).all(|f| !is_defective(&m, f, &p, &input)));
+    }
+
+    #[test]
+    fn a_fold_among_the_slivers_of_a_noisy_isosurface_opens() {
+        // A real patch (`testdata/README.md`): every ring the widenings
+        // take in leaves a sliver at the cluster's rim that the retreat
+        // folds; the corners of those faces, taken in, let it go back.
+        let (m, input, mut p) = patch(include_str!("testdata/noisy_isosurface_fold.txt"));
+        let t = Topology::build(&m);
+        let stats = fix_inverted_faces(&m, &t, &mut p, &input, None, 20);
+        assert_eq!((stats.found, stats.remaining), (1, 0), "{stats:?}");
         assert!((0..m.num_faces()).all(|f| !is_defective(&m, f, &p, &input)));
     }
 
