@@ -501,21 +501,22 @@ impl Cluster {
         for &v in &self.vertices {
             positions[v] = input[v];
         }
+        // The corners taken in keep their positions, so they are pushed as
+        // found; only the vertices there before are back at the input.
         let before = self.vertices.len();
-        let mut added = Vec::new();
-        for &v in &self.vertices {
-            for &f in topo.vertex_faces(v) {
+        for i in 0..before {
+            for &f in topo.vertex_faces(self.vertices[i]) {
                 let face = mesh.face(f as usize);
                 if has_repeated_corner(face) || !is_inverted(face, positions, input) {
                     continue;
                 }
                 for &c in face {
                     let c = c as usize;
-                    if movable(topo, c, positions, input)
+                    if self.vertices.len() < MAX_CLUSTER_VERTICES
+                        && movable(topo, c, positions, input)
                         && !self.vertices.contains(&c)
-                        && !added.contains(&c)
                     {
-                        added.push(c);
+                        self.vertices.push(c);
                     }
                 }
             }
@@ -523,8 +524,6 @@ impl Cluster {
         for &(v, p) in &self.moves {
             positions[v] = p;
         }
-        let room = MAX_CLUSTER_VERTICES.saturating_sub(before);
-        self.vertices.extend(added.into_iter().take(room));
         self.vertices.len() > before
     }
 

@@ -223,6 +223,13 @@ fn push_split_normals(face: &[u32], positions: &[DVec3], out: &mut Vec<DVec3>) {
     out.push(sum);
 }
 
+/// Whether a face of `k` corners whose split normals are `normals` (as
+/// written by `push_split_normals`) is a twisted quad ([`is_twisted`]).
+#[inline]
+fn split_normals_twisted(k: usize, normals: &[DVec3]) -> bool {
+    k == 4 && normals[0].dot(normals[1]) < 0.0
+}
+
 /// State of `face` given the split normals of the input (as written by
 /// `push_split_normals`).
 #[inline]
@@ -247,7 +254,7 @@ fn face_state_at(
     let k = face.len();
     // A quad the input has twisted: its vector area alone says whether it
     // is inverted (see `is_inverted`).
-    let split_oriented = k > 3 && !(k == 4 && input_normals[0].dot(input_normals[1]) < 0.0);
+    let split_oriented = k > 3 && !split_normals_twisted(k, input_normals);
     let mut sum = DVec3::ZERO;
     let mut first = DVec3::ZERO;
     let mut inverted = false;
@@ -500,9 +507,8 @@ impl MoveTester {
             self.starts.push(start as u32);
             push_split_normals(face, input, &mut self.input_normals);
             let normals = &self.input_normals[start..];
-            self.input_twist.push(
-                self.input_twists_allowed && face.len() == 4 && normals[0].dot(normals[1]) < 0.0,
-            );
+            self.input_twist
+                .push(self.input_twists_allowed && split_normals_twisted(face.len(), normals));
             self.before
                 .push(face_state_with(face, positions, normals, cos_goal));
         }
