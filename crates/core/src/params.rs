@@ -196,9 +196,10 @@ pub struct Params {
     /// bending energy: `s^-4` keeps the input's shape at wavelengths longer
     /// than about `2 pi s` edges and smooths shorter ones within the dual
     /// voxels. Corners deep inside a wide terrace are pulled only within its
-    /// plane, so it bends with its rims wherever the grid put it. Default 0.03 (`s` about 2.4), the best of 0.01 to 0.06 on
-    /// the real voxel masks and the analytic families (`docs/tuning.md`);
-    /// range 0 < a <= 100.
+    /// plane, so it bends with its rims wherever the grid put it. Default
+    /// 0.03 (`s` about 2.4), the best of 0.01 to 0.06 on the real voxel
+    /// masks and the analytic families (`docs/tuning.md`); range 0 < a <=
+    /// 100.
     pub lattice_fairing_anchor: f64,
     /// A vertex whose adaptive neighbourhood stays within this many rings
     /// lies on the shape, not on the staircase: the curvature changes
@@ -257,13 +258,13 @@ pub struct Params {
     /// default 2 lets a vertex move 1.7 standard deviations of it: the
     /// noise is taken out but for its tails, and a move farther across is
     /// the fits reshaping the surface (on the meshes of real probability
-    /// maps, their folds), not noise (`docs/tuning.md`). The distance across is measured from the input's own quadric
-    /// through the vertex, so moves along a curved surface are free (within
-    /// `max_displacement`). After the
-    /// passes, the move across that a vertex shares with its 1-ring (the
-    /// fits' bias, which flattens folds; noise averages out over a ring) is
-    /// taken back. Needs `max_displacement`; `null` holds such vertices in
-    /// its ball alone and takes nothing back.
+    /// maps, their folds), not noise (`docs/tuning.md`). The distance
+    /// across is measured from the input's own quadric through the vertex,
+    /// so moves along a curved surface are free (within
+    /// `max_displacement`). After the passes, the move across that a vertex
+    /// shares with its 1-ring (the fits' bias, which flattens folds; noise
+    /// averages out over a ring) is taken back. Needs `max_displacement`;
+    /// `null` holds such vertices in its ball alone and takes nothing back.
     /// Default 2; range 0 < k <= 100.
     pub noise_bound: Option<f64>,
     /// What boundary vertices do. Default `fixed`.

@@ -35,9 +35,10 @@ pub struct InitialPlan<'a> {
 /// vertex's 2-ring (at most `plan.max_points` points,
 /// [`select_rings`](super::neighbourhood::select_rings)), walked
 /// as each vertex is fitted rather than stored. Updates `positions` in
-/// place, each pass held to `plan.fidelity`, and returns the fit statistics, and the curvature of the starting
-/// positions that pass 0's fits give: [`vertex_curvatures`] with 2 rings,
-/// the curvature a report gives for the input, at no extra cost.
+/// place, each pass held to `plan.fidelity`, and returns the fit
+/// statistics and the curvature of the starting positions that pass 0's
+/// fits give: [`vertex_curvatures`] with 2 rings, the curvature a report
+/// gives for the input, at no extra cost.
 pub fn initial_passes(
     mesh: &Mesh,
     topo: &Topology,
