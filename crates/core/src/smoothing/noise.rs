@@ -29,11 +29,11 @@
 //! the default 2 is 1.7 standard deviations of such noise, which lets the
 //! passes take out all but the noise's tails and keeps them from reshaping
 //! the surface beneath it: on a real map's mesh a move farther across is
-//! mostly the fits flattening a fold two or three edges across. Along the surface the ball of the bound still
-//! decides, and "across" is measured from the input's own quadric through
-//! the input position (the quadric alone: its curvature at the vertex,
-//! without the cubic terms' tilt away from it), so a move along a curved
-//! surface is not a move across it.
+//! mostly the fits flattening a fold two or three edges across. Along the
+//! surface the ball of the bound still decides, and "across" is measured
+//! from the input's own quadric through the input position (the quadric
+//! alone: its curvature at the vertex, without the cubic terms' tilt away
+//! from it), so a move along a curved surface is not a move across it.
 //!
 //! [`Params::noise_bound`]: crate::Params::noise_bound
 
