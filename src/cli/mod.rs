@@ -223,7 +223,10 @@ fn run_smooth(args: SmoothArgs) -> Result<(), Failure> {
     let elapsed = started.elapsed();
 
     write_output(&args.output, &output.bytes).map_err(Failure::other)?;
-    if params.vertex_results && !args.quiet && matches!(out_format, Format::Obj | Format::Stl) {
+    if params.vertex_results
+        && !args.quiet
+        && matches!(out_format, Format::Obj | Format::Stl | Format::Off)
+    {
         eprintln!(
             "meshsmooth: note: {out_format} cannot hold per-vertex results; --vertex-results \
              has no effect (write glTF or PLY)"

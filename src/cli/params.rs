@@ -64,7 +64,7 @@ pub struct ParamFlags {
     #[command(flatten)]
     weld: WeldFlags,
     /// Add per-vertex results (label, curvatures, displacement) to a glTF
-    /// or PLY output; OBJ and STL cannot hold them
+    /// or PLY output; OBJ, STL and OFF cannot hold them
     /// [params: vertex_results = true].
     #[arg(long)]
     vertex_results: bool,
@@ -76,7 +76,7 @@ pub struct ParamFlags {
 pub struct WeldFlags {
     /// Join vertices that share a position before smoothing (default: on
     /// for glTF, STL and files that repeat most of their positions, off
-    /// for other OBJ and PLY) [params: weld = true].
+    /// for other OBJ, PLY and OFF) [params: weld = true].
     #[arg(long, overrides_with = "no_weld")]
     weld: bool,
     /// Do not join vertices that share a position [params: weld = false].

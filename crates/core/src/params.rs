@@ -286,12 +286,12 @@ pub struct Params {
     /// position, so seams stay closed and an output in the input's format
     /// keeps the file's vertex count and order (another format gets the
     /// welded mesh). `null` takes the format's default: on for glTF/GLB and
-    /// STL, and for an OBJ or PLY that repeats most of its positions
+    /// STL, and for an OBJ, PLY or OFF that repeats most of its positions
     /// (welding leaves at most half its vertices: a face soup, a
     /// flat-shaded export) or whose repeated positions join open edges (a
     /// crack: separate sheets meeting at the same rim, as VTK's surface
     /// nets leave where voxels touch along an edge; a PLY cut along its
-    /// texture seams); off for other OBJ and PLY. Bodies whose surfaces
+    /// texture seams); off for other OBJ, PLY and OFF. Bodies whose surfaces
     /// touch face to face (segments of a segmentation written into one
     /// file, each with its own vertices) are welded each on its own and
     /// smoothed apart (report `mesh.touching_bodies`). Default `null`.
@@ -303,7 +303,7 @@ pub struct Params {
     /// displacement) to the written mesh: glTF attributes `_LABEL`,
     /// `_MEAN_CURVATURE`, `_GAUSSIAN_CURVATURE`, `_DISPLACEMENT`; PLY vertex
     /// properties `label`, `mean_curvature`, `gaussian_curvature`,
-    /// `displacement`. OBJ and STL cannot hold them: ignored there.
+    /// `displacement`. OBJ, STL and OFF cannot hold them: ignored there.
     /// Default false.
     pub vertex_results: bool,
     /// Mesh-quality fixes (section 2.4).

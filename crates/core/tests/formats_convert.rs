@@ -206,6 +206,7 @@ fn detection_by_name_content_type_and_content() {
         ("scan.GLB", Format::Glb),
         ("x.ply", Format::Ply),
         ("part.stl", Format::Stl),
+        ("2jho.OFF", Format::Off),
     ] {
         assert_eq!(Format::from_file_name(name), Some(f), "{name}");
         assert_eq!(f.name().parse::<Format>(), Ok(f));
@@ -217,6 +218,7 @@ fn detection_by_name_content_type_and_content() {
         ("application/sla", Format::Stl),
         ("model/x.stl-ascii", Format::Stl),
         ("application/ply", Format::Ply),
+        ("application/x-off", Format::Off),
     ] {
         assert_eq!(Format::from_content_type(ct), Some(f), "{ct}");
     }
@@ -225,6 +227,7 @@ fn detection_by_name_content_type_and_content() {
     assert_eq!(sniffed(b"ply\r\nformat ascii 1.0\r\n"), Some(Format::Ply));
     assert_eq!(sniffed(b"  {\"asset\":{}}"), Some(Format::Gltf));
     assert_eq!(sniffed(b"solid cube\nfacet normal"), Some(Format::Stl));
+    assert_eq!(sniffed(b"# GAMer\nOFF\n4622 9244 0\n"), Some(Format::Off));
     // A binary STL whose header starts with `solid` is still STL, and one
     // whose header reads like OBJ too: the size decides.
     let mut bin = vec![b' '; 84 + 50];

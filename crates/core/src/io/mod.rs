@@ -9,8 +9,10 @@
 mod bodies;
 pub mod gltf;
 pub mod obj;
+pub mod off;
 pub mod ply;
 pub mod stl;
+mod text;
 pub mod weld;
 
 pub use bodies::FileBodies;
@@ -34,6 +36,8 @@ pub enum Format {
     Ply,
     /// STL: ASCII or binary.
     Stl,
+    /// Geomview's OFF (text).
+    Off,
 }
 
 impl Format {
@@ -44,6 +48,7 @@ impl Format {
         Format::Glb,
         Format::Ply,
         Format::Stl,
+        Format::Off,
     ];
 
     /// Short lowercase name, as accepted by [`str::parse`] (`obj`).
@@ -59,6 +64,7 @@ impl Format {
             Format::Glb => "glb",
             Format::Ply => "ply",
             Format::Stl => "stl",
+            Format::Off => "off",
         }
     }
 
@@ -70,6 +76,7 @@ impl Format {
             Format::Glb => "model/gltf-binary",
             Format::Ply => "application/x-ply",
             Format::Stl => "model/stl",
+            Format::Off => "model/x-off",
         }
     }
 
@@ -97,14 +104,15 @@ impl Format {
             | "model/x.stl-binary"
             | "application/sla"
             | "application/vnd.ms-pki.stl" => Some(Format::Stl),
+            "model/x-off" | "application/x-off" | "model/off" => Some(Format::Off),
             _ => None,
         }
     }
 
     /// Format guessed from the bytes of a file, checked in this order: the
     /// GLB magic, the `ply` magic, a binary STL's size (`84 + 50 x` its
-    /// triangle count), a JSON object (glTF), `solid` (ASCII STL), OBJ
-    /// keywords; `None` when nothing matches.
+    /// triangle count), a JSON object (glTF), `solid` (ASCII STL), the `OFF`
+    /// keyword, OBJ keywords; `None` when nothing matches.
     pub fn sniff(bytes: &[u8]) -> Option<Format> {
         let head = bytes.get(..bytes.len().min(8192)).unwrap_or(bytes);
         let head = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
@@ -129,6 +137,9 @@ impl Format {
             .is_some_and(|w| w.eq_ignore_ascii_case(b"solid"))
         {
             return Some(Format::Stl);
+        }
+        if off::starts_with_keyword(head) {
+            return Some(Format::Off);
         }
         const OBJ_KEYWORDS: &[&[u8]] =
             &[b"v", b"vt", b"vn", b"f", b"o", b"g", b"mtllib", b"usemtl"];
@@ -196,7 +207,9 @@ pub struct ReadOptions {
     /// Limits on untrusted input.
     pub limits: ReadLimits,
     /// Join vertices that share a position (see [`weld`]); `None` takes the
-    /// format's default: on for glTF and STL, off for OBJ and PLY.
+    /// format's default: on for glTF and STL; for OBJ, PLY and OFF, on
+    /// when the file repeats most of its positions or its repeated positions
+    /// join open edges.
     pub weld: Option<bool>,
     /// Welding tolerance as a fraction of the bounding-box diagonal; 0
     /// joins only equal positions. Default 0.
@@ -241,6 +254,7 @@ enum Source {
     Gltf(gltf::GltfSource),
     Ply(ply::PlySource),
     Stl(stl::StlSource),
+    Off(off::OffSource),
 }
 
 /// Per-vertex results to store with the written mesh, each slice empty
@@ -248,7 +262,7 @@ enum Source {
 /// them as float attributes `_LABEL`, `_MEAN_CURVATURE`,
 /// `_GAUSSIAN_CURVATURE`, `_DISPLACEMENT`; PLY as vertex properties
 /// `label` (uchar), `mean_curvature`, `gaussian_curvature`, `displacement`
-/// (float); OBJ and STL cannot hold them.
+/// (float); OBJ, STL and OFF cannot hold them.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct VertexResults<'a> {
     /// Label of each vertex (Table 2 of Wang & Yu).
@@ -433,6 +447,10 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
             let (mesh, src) = stl::read_stl(bytes, limits)?;
             (mesh, Source::Stl(src))
         }
+        Format::Off => {
+            let (mesh, src) = off::read_off(bytes, limits)?;
+            (mesh, Source::Off(src))
+        }
     };
     let weld_default = matches!(format, Format::Gltf | Format::Glb | Format::Stl);
     let groups = match &source {
@@ -446,7 +464,7 @@ pub fn read_with(bytes: &[u8], format: Format, options: &ReadOptions) -> Result<
             (Some(w), bodies) => (true, bodies, w.mesh, Some(w.vertex_map)),
             (None, bodies) => (true, bodies, mesh, None),
         },
-        // OBJ and PLY share vertices by index: a file that still repeats
+        // OBJ, PLY and OFF share vertices by index: a file that still repeats
         // most of its positions was written face by face (a soup, a
         // flat-shaded export), and one whose repeated positions join open
         // edges has cracks (rims at the same place: a mesher that splits
@@ -562,6 +580,7 @@ pub fn write_with(
             | (Source::Gltf(_), Format::Gltf | Format::Glb)
             | (Source::Ply(_), Format::Ply)
             | (Source::Stl(_), Format::Stl)
+            | (Source::Off(_), Format::Off)
     );
     if same_format {
         let expanded = doc.expand_positions(positions);
@@ -575,6 +594,7 @@ pub fn write_with(
             }
             (Source::Ply(src), _) => ply::write_ply(src, &expanded, results, &mut out)?,
             (Source::Stl(src), _) => stl::write_stl(src, &expanded, options.stl_ascii, &mut out)?,
+            (Source::Off(src), _) => off::write_off(src, &expanded, &mut out)?,
         }
         return Ok(out);
     }
@@ -586,6 +606,7 @@ pub fn write_with(
         }
         Format::Ply => ply::write_ply_plain(mesh, positions, results, &mut out)?,
         Format::Stl => stl::write_stl_plain(mesh, positions, options.stl_ascii, &mut out)?,
+        Format::Off => off::write_off_plain(mesh, positions, &mut out)?,
     }
     Ok(out)
 }

@@ -18,22 +18,17 @@
 //! (`face_index_out_of_range`); and files without any face (`no_faces`:
 //! smoothing needs a surface).
 
+use super::text::{
+    Fields, TextSource, check_encoding, for_each_line, parse_index, shorten, write_xyz,
+};
 use super::{IoError, ReadLimits};
 use crate::mesh::Mesh;
 use glam::DVec3;
-use std::sync::Arc;
 
 const FORMAT: &str = "OBJ";
-const UTF8_BOM: &[u8] = b"\xEF\xBB\xBF";
 
-/// What an OBJ file needs besides the mesh to be written back: the original
-/// bytes and, per vertex, where its `x y z` fields lie in them.
-#[derive(Debug, Clone)]
-pub struct ObjSource {
-    bytes: Arc<[u8]>,
-    /// One entry per vertex: byte range `start..end` of the `x y z` fields.
-    coords: Vec<(usize, usize)>,
-}
+/// What an OBJ file needs besides the mesh to be written back.
+pub type ObjSource = TextSource;
 
 /// Parses OBJ bytes into a mesh (one vertex per `v` line, one face per `f`
 /// line, both in file order) and what [`write_obj`] needs to write the file
@@ -42,22 +37,9 @@ pub struct ObjSource {
 /// Errors name the 1-based line and the problem; counts beyond `limits` are
 /// refused while parsing. A file without faces is an error.
 pub fn read_obj(bytes: &[u8], limits: &ReadLimits) -> Result<(Mesh, ObjSource), IoError> {
-    check_encoding(bytes)?;
+    check_encoding(bytes, FORMAT)?;
     let mut reader = Reader::new(limits);
-    let mut pos = if bytes.starts_with(UTF8_BOM) {
-        UTF8_BOM.len()
-    } else {
-        0
-    };
-    let mut line = 0usize;
-    while pos < bytes.len() {
-        line += 1;
-        let rest = bytes.get(pos..).unwrap_or_default();
-        let len = memchr::memchr(b'\n', rest).unwrap_or(rest.len());
-        let text = rest.get(..len).unwrap_or_default();
-        reader.line(text, pos, line)?;
-        pos += len + 1;
-    }
+    for_each_line(bytes, |text, offset, line| reader.line(text, offset, line))?;
     reader.finish(bytes)
 }
 
@@ -65,21 +47,7 @@ pub fn read_obj(bytes: &[u8], limits: &ReadLimits) -> Result<(Mesh, ObjSource), 
 /// place of the `x y z` fields of its `v` lines; every other byte is copied
 /// unchanged. Coordinates are printed with shortest round-trip precision.
 pub fn write_obj(src: &ObjSource, positions: &[DVec3], out: &mut Vec<u8>) -> Result<(), IoError> {
-    if positions.len() != src.coords.len() {
-        return Err(IoError::PositionCount {
-            expected: src.coords.len(),
-            got: positions.len(),
-        });
-    }
-    out.reserve(src.bytes.len() + src.bytes.len() / 8);
-    let mut copied = 0;
-    for (v, (p, &(start, end))) in positions.iter().zip(&src.coords).enumerate() {
-        out.extend_from_slice(src.bytes.get(copied..start).unwrap_or_default());
-        write_xyz(out, v, *p)?;
-        copied = end;
-    }
-    out.extend_from_slice(src.bytes.get(copied..).unwrap_or_default());
-    Ok(())
+    src.write(positions, out)
 }
 
 /// Writes `mesh` with `positions` (one per vertex) as a plain OBJ: one
@@ -109,27 +77,6 @@ pub fn write_obj_plain(mesh: &Mesh, positions: &[DVec3], out: &mut Vec<u8>) -> R
     Ok(())
 }
 
-fn write_xyz(out: &mut Vec<u8>, vertex: usize, p: DVec3) -> Result<(), IoError> {
-    if !p.is_finite() {
-        return Err(crate::error::MeshError::NonFinitePosition { vertex }.into());
-    }
-    write_coordinate(out, p.x);
-    out.push(b' ');
-    write_coordinate(out, p.y);
-    out.push(b' ');
-    write_coordinate(out, p.z);
-    Ok(())
-}
-
-/// Shortest text that parses back to exactly `x` (`x` finite), without a
-/// trailing `.0`; scientific notation only for very small or large
-/// magnitudes.
-fn write_coordinate(out: &mut Vec<u8>, x: f64) {
-    let mut buffer = zmij::Buffer::new();
-    let text = buffer.format_finite(x);
-    out.extend_from_slice(text.strip_suffix(".0").unwrap_or(text).as_bytes());
-}
-
 fn parse_error(line: usize, message: String) -> IoError {
     IoError::Parse {
         format: FORMAT,
@@ -143,71 +90,6 @@ fn index_error(line: usize, message: String) -> IoError {
         format: FORMAT,
         line: Some(line),
         message,
-    }
-}
-
-/// Rejects UTF-16 (by its byte-order mark or NUL bytes) and files whose only
-/// line breaks are bare carriage returns, which would otherwise read as one
-/// long line.
-fn check_encoding(bytes: &[u8]) -> Result<(), IoError> {
-    if bytes.starts_with(b"\xFE\xFF") || bytes.starts_with(b"\xFF\xFE") {
-        return Err(parse_error(
-            1,
-            "the file is UTF-16 text (byte-order mark); save it as UTF-8 or ASCII".into(),
-        ));
-    }
-    if let Some(at) = memchr::memchr(0, bytes) {
-        let line = 1 + bytes
-            .get(..at)
-            .unwrap_or_default()
-            .iter()
-            .filter(|&&b| b == b'\n')
-            .count();
-        return Err(parse_error(
-            line,
-            "NUL byte: this is not a text OBJ file (UTF-16 or binary?); save it as UTF-8 or ASCII"
-                .into(),
-        ));
-    }
-    if memchr::memchr(b'\n', bytes).is_none() && memchr::memchr(b'\r', bytes).is_some() {
-        return Err(parse_error(
-            1,
-            "lines end in a bare carriage return (classic Mac OS); convert the line endings to \\n or \\r\\n"
-                .into(),
-        ));
-    }
-    Ok(())
-}
-
-/// Blanks between fields. `\r` counts as one so `\r\n` endings need no
-/// special case.
-fn is_blank(b: u8) -> bool {
-    matches!(b, b' ' | b'\t' | b'\r' | b'\x0b' | b'\x0c')
-}
-
-/// Fields of one line, as byte ranges relative to the line.
-struct Fields<'a> {
-    text: &'a [u8],
-    pos: usize,
-}
-
-impl<'a> Fields<'a> {
-    fn new(text: &'a [u8]) -> Self {
-        Fields { text, pos: 0 }
-    }
-
-    /// Next field as `(start, end, bytes)`; stops at a `#` comment.
-    fn next_field(&mut self) -> Option<(usize, usize, &'a [u8])> {
-        let t = self.text;
-        let start = self.pos + t.get(self.pos..)?.iter().position(|&b| !is_blank(b))?;
-        let rest = t.get(start..)?;
-        if rest.first() == Some(&b'#') {
-            self.pos = t.len();
-            return None;
-        }
-        let len = rest.iter().position(|&b| is_blank(b)).unwrap_or(rest.len());
-        self.pos = start + len;
-        Some((start, self.pos, rest.get(..len)?))
     }
 }
 
@@ -262,23 +144,9 @@ impl<'l> Reader<'l> {
                 limit: self.limits.max_vertices,
             });
         }
-        let mut xyz = [0.0f64; 3];
-        let mut span = (0, 0);
-        for (axis, value) in ["x", "y", "z"].into_iter().zip(xyz.iter_mut()) {
-            let Some((start, end, field)) = fields.next_field() else {
-                return Err(parse_error(
-                    line,
-                    format!("`v` needs x, y and z coordinates; {axis} is missing"),
-                ));
-            };
-            *value = parse_coordinate(field, axis, line)?;
-            if axis == "x" {
-                span.0 = offset + start;
-            }
-            span.1 = offset + end;
-        }
-        self.positions.push(DVec3::from_array(xyz));
-        self.coords.push(span);
+        let (position, (start, end)) = fields.xyz("`v`", line, FORMAT)?;
+        self.positions.push(position);
+        self.coords.push((offset + start, offset + end));
         Ok(())
     }
 
@@ -370,39 +238,9 @@ impl<'l> Reader<'l> {
             });
         }
         let mesh = Mesh::new(self.positions, self.face_offsets, self.face_vertices)?;
-        let src = ObjSource {
-            bytes: Arc::from(bytes),
-            coords: self.coords,
-        };
+        let src = TextSource::new(bytes, self.coords);
         Ok((mesh, src))
     }
-}
-
-/// Parses a finite coordinate of a `v` line on `line`.
-fn parse_coordinate(field: &[u8], axis: &str, line: usize) -> Result<f64, IoError> {
-    let text = std::str::from_utf8(field).map_err(|_| {
-        parse_error(
-            line,
-            format!("{axis} coordinate is not a number (it has non-ASCII bytes)"),
-        )
-    })?;
-    let value: f64 = text.parse().map_err(|_| {
-        parse_error(
-            line,
-            format!("{axis} coordinate `{}` is not a number", shorten(text)),
-        )
-    })?;
-    if !value.is_finite() {
-        return Err(IoError::NonFiniteCoordinate {
-            format: FORMAT,
-            line: Some(line),
-            message: format!(
-                "{axis} coordinate `{}` is not finite (NaN or infinity)",
-                shorten(text)
-            ),
-        });
-    }
-    Ok(value)
 }
 
 /// Parses one face corner `v`, `v/vt`, `v//vn` or `v/vt/vn` and returns its
@@ -435,35 +273,6 @@ fn parse_corner(field: &[u8]) -> Result<i64, String> {
         }
     }
     Ok(index)
-}
-
-/// Parses an optionally signed decimal integer; `None` when malformed or
-/// beyond 18 digits (no mesh has that many vertices).
-fn parse_index(text: &[u8]) -> Option<i64> {
-    let (negative, digits) = match text.split_first() {
-        Some((b'-', rest)) => (true, rest),
-        Some((b'+', rest)) => (false, rest),
-        _ => (false, text),
-    };
-    if digits.is_empty() || digits.len() > 18 {
-        return None;
-    }
-    let mut value: i64 = 0;
-    for &d in digits {
-        if !d.is_ascii_digit() {
-            return None;
-        }
-        value = value * 10 + i64::from(d - b'0');
-    }
-    Some(if negative { -value } else { value })
-}
-
-/// At most 40 characters of `text`, for messages.
-fn shorten(text: &str) -> &str {
-    match text.char_indices().nth(40) {
-        Some((at, _)) => text.get(..at).unwrap_or(text),
-        None => text,
-    }
 }
 
 #[cfg(test)]
@@ -556,38 +365,6 @@ mod tests {
         let (again, _) = read(&out).unwrap();
         assert_eq!(again.positions(), &moved[..]);
         assert_eq!(faces(&again), faces(&mesh));
-    }
-
-    #[test]
-    fn coordinates_are_written_short_and_exact() {
-        for (x, text) in [
-            (0.0, "0"),
-            (-0.0, "-0"),
-            (1.0, "1"),
-            (0.1, "0.1"),
-            (-4.33681e-19, "-4.33681e-19"),
-            (1e300, "1e+300"),
-            (16384.0, "16384"),
-            (123456.75, "123456.75"),
-        ] {
-            let mut out = Vec::new();
-            write_coordinate(&mut out, x);
-            assert_eq!(std::str::from_utf8(&out).unwrap(), text);
-        }
-        for x in [
-            f64::MIN_POSITIVE,
-            f64::MAX,
-            -f64::MAX,
-            5e-324,
-            1.0 / 3.0,
-            2e-5,
-            9.999e15,
-        ] {
-            let mut out = Vec::new();
-            write_coordinate(&mut out, x);
-            let back: f64 = std::str::from_utf8(&out).unwrap().parse().unwrap();
-            assert_eq!(back.to_bits(), x.to_bits());
-        }
     }
 
     #[test]

@@ -14,6 +14,7 @@
 //! present before anything is allocated for them. Header errors name the
 //! 1-based header line; ASCII body errors the line of the offending value.
 
+use super::text::shorten;
 use super::{IoError, ReadLimits, VertexResults};
 use crate::mesh::Mesh;
 use glam::DVec3;
@@ -462,14 +463,6 @@ fn parse_property<'a>(
         name: (*name).to_owned(),
         kind,
     })
-}
-
-fn shorten(text: &str) -> &str {
-    let mut end = text.len().min(40);
-    while !text.is_char_boundary(end) {
-        end -= 1;
-    }
-    text.get(..end).unwrap_or_default()
 }
 
 /// Reads values from the body, ASCII or binary.
