@@ -33,6 +33,14 @@ drawn thicker (64) or thinner (191) than the data folder's masks.
 were cut from (`python3 eval/fetch_mni152.py` puts them in `eval/.mni152`):
 at placement 0 their masks are the issue's held-out 1 mm white- and
 grey-matter masks (314,946 and 534,618 vertices as voxel quads).
+`t1_white` and `t1_pial` are level sets of the T1-weighted template of the
+same release (also from `fetch_mni152.py`), in the WM crop's 48-voxel block:
+the template's intensity halfway between the medians of white and grey
+matter (220 and 167: level 193.5) and between grey matter and the CSF in the
+sulci (167 and 70: level 118.5), a white and a pial surface, with the
+template itself as the map whose level is the truth. `t1_white_b` and
+`t1_pial_b` are the same in a second block, in the other hemisphere. No
+constant was tuned on them.
 
 For each mesh the table gives meshsmooth at its defaults and the best truth
 RMS any peer setting reaches on that same mesh (and which setting), then the
@@ -62,9 +70,16 @@ import meshmetrics as mm  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 
 # name: (probability map, crop margin in voxels or None, grid spacing in the
-# map's voxels, one per grid axis). `gm_1mm` has the truth of `gm_2mm` (a
-# trilinear map restricted to a half cell is trilinear) with the cortex two or
-# three voxels thick instead of one or two.
+# map's voxels, one per grid axis[, level, block]): the level of the mask and
+# its truth when the map has its own (else `--level`), and the block of the map
+# to use (first voxel, size) when not all of it. `gm_1mm` has the truth of
+# `gm_2mm` (a trilinear map restricted to a half cell is trilinear) with the
+# cortex two or three voxels thick instead of one or two.
+T1 = "mni_icbm152_t1_tal_nlin_sym_09a_converted.nii.gz"
+# The WM crop's block of the whole-brain maps, and one as large in the other
+# hemisphere, further forward and up.
+BLOCK_A = ((60, 100, 70), 48)
+BLOCK_B = ((89, 120, 95), 48)
 MAPS = {
     "wm_crop": ("mni152_wm_crop48_1mm_prob.nii.gz", 3, (1.0, 1.0, 1.0)),
     "gm_2mm": ("mni152_gm_2mm_prob.nii.gz", None, (1.0, 1.0, 1.0)),
@@ -77,10 +92,15 @@ MAPS = {
     # 0 their masks are the issue's held-out 1 mm masks.
     "wm_brain": ("mni_icbm152_wm_tal_nlin_sym_09a_converted.nii.gz", None, (1.0, 1.0, 1.0)),
     "gm_brain": ("mni_icbm152_gm_tal_nlin_sym_09a_converted.nii.gz", None, (1.0, 1.0, 1.0)),
+    "t1_white": (T1, 3, (1.0, 1.0, 1.0), 193.5, BLOCK_A),
+    "t1_pial": (T1, 3, (1.0, 1.0, 1.0), 118.5, BLOCK_A),
+    "t1_white_b": (T1, 3, (1.0, 1.0, 1.0), 193.5, BLOCK_B),
+    "t1_pial_b": (T1, 3, (1.0, 1.0, 1.0), 118.5, BLOCK_B),
 }
 # Maps looked for in `--mni152` instead of `--data`; not run unless named in
-# `--only` (each mesh has 315k-535k vertices; the peers' sweep takes minutes).
-WHOLE_BRAIN = ("wm_brain", "gm_brain")
+# `--only` (the whole-brain meshes have 315k-535k vertices; the peers' sweep
+# takes minutes).
+WHOLE_BRAIN = ("wm_brain", "gm_brain", "t1_white", "t1_pial", "t1_white_b", "t1_pial_b")
 LEVEL = 127.5
 
 
@@ -242,7 +262,7 @@ def main():
         "--level",
         type=float,
         default=LEVEL,
-        help="the threshold of the mask and the level of its truth (0-255; default 127.5, the data folder's masks)",
+        help="the threshold of the mask and the level of its truth (0-255; default 127.5, the data folder's masks; the T1 maps keep their own)",
     )
     ap.add_argument("--dump", help="also write each placement's meshes to this folder, as NAME_SEED_KIND.obj")
     ap.add_argument(
@@ -257,13 +277,20 @@ def main():
     ours = cp.meshsmooth(args.binary, ["--params", args.params] if args.params else [])
     kinds = args.kinds.split(",")
     sweep = {} if args.no_peers else peers()
-    for name, (prob, margin, spacing) in MAPS.items():
+    for name, (prob, margin, spacing, *own) in MAPS.items():
         if (args.only or name in WHOLE_BRAIN) and name not in args.only.split(","):
             continue
+        level = own[0] if own else args.level
         path = os.path.join(args.mni152 if name in WHOLE_BRAIN else args.data, prob)
         img = nib.load(path)
         data = np.asarray(img.dataobj, dtype=np.float64)
-        truth = mm.Truth(path, level=args.level)
+        affine = img.affine
+        if len(own) > 1:
+            (first, size) = own[1]
+            data = data[tuple(slice(f, f + size) for f in first)]
+            affine = affine.copy()
+            affine[:3, 3] = affine[:3, :3] @ np.asarray(first, dtype=float) + affine[:3, 3]
+        truth = mm.Truth(data=data, affine=affine, level=level)
         rows = {"vox": [], "mc": []}
         print(f"\n## {name}: truth RMS in mm (ours, best peer setting, ratio), flipped/twisted/min angle of ours")
         print(
@@ -273,11 +300,11 @@ def main():
         print("|---|---|---|---|---|---|---|---|---|---|")
         for seed in range(args.first, args.first + args.placements):
             rot, offset = placement(seed, not args.no_rotation)
-            mask, to_data, sampled = resampled_mask(data, rot, offset, spacing, args.level)
+            mask, to_data, sampled = resampled_mask(data, rot, offset, spacing, level)
             # Placement 0 samples the map at its own nodes: the same truth.
             here = truth
             if args.grid_truth and seed:
-                here = grid_truth(sampled, to_data, img.affine, args.level)
+                here = grid_truth(sampled, to_data, affine, level)
                 # The vertices measured are those inside the map's own crop.
                 here.inside_crop = truth.inside_crop
             qv, qf = voxel_quads(mask)
@@ -286,14 +313,14 @@ def main():
                     continue
                 # Marching cubes only when asked (the 1 mm grids are large).
                 v, f = (qv, qf) if kind == "vox" else marching_cubes(mask, mm.signed_volume(qv, mm.triangles(qf)))
-                world = to_data(v) @ img.affine[:3, :3].T + img.affine[:3, 3]
+                world = to_data(v) @ affine[:3, :3].T + affine[:3, 3]
                 if args.dump:
                     os.makedirs(args.dump, exist_ok=True)
                     mm.write_obj(os.path.join(args.dump, f"{name}_{seed}_{kind}.obj"), world, f)
                 inp = truth_rms(here, world, margin)
                 out = ours(world, f)
                 m = mm.measure(world, f, out, None, here, margin)
-                m["max_move"] = grid_move(world, out, img.affine, rot, spacing)
+                m["max_move"] = grid_move(world, out, affine, rot, spacing)
                 best = (float("inf"), "-")
                 for setting, run in sweep.items():
                     try:
