@@ -107,6 +107,7 @@ async fn cli_and_service_give_the_same_mesh_and_report() {
             r#"{"vertex_results": true, "adaptive_passes": 3}"#,
         ),
         (Format::Stl, r#"{"weld": true}"#),
+        (Format::Off, r#"{"initial_passes": 2}"#),
     ] {
         let bytes = input(format);
         let (cli_mesh, cli_report) = cli(&dir, format, &bytes, params);
