@@ -60,7 +60,13 @@ fn read_and_write_throughput() {
         "format      MB   read s  read MB/s  write s  write MB/s  (read includes welding for GLB and STL)"
     );
     let mut total = Vec::new();
-    for format in [Format::Obj, Format::Glb, Format::Ply, Format::Stl] {
+    for format in [
+        Format::Obj,
+        Format::Glb,
+        Format::Ply,
+        Format::Stl,
+        Format::Off,
+    ] {
         let bytes = io::write(&source, source.mesh.positions(), format).unwrap();
         let mb = bytes.len() as f64 / 1e6;
         let (read, doc) = best(|| io::read(&bytes, format, &ReadLimits::default()).unwrap());

@@ -71,6 +71,7 @@ pub(super) fn check_encoding(bytes: &[u8], format: &'static str) -> Result<(), I
 
 /// Blanks between fields. `\r` counts as one so `\r\n` endings need no
 /// special case.
+#[inline]
 fn is_blank(b: u8) -> bool {
     matches!(b, b' ' | b'\t' | b'\r' | b'\x0b' | b'\x0c')
 }
@@ -87,6 +88,7 @@ impl<'a> Fields<'a> {
     }
 
     /// Next field as `(start, end, bytes)`; stops at a `#` comment.
+    #[inline]
     pub(super) fn next_field(&mut self) -> Option<(usize, usize, &'a [u8])> {
         let t = self.text;
         let start = self.pos + t.get(self.pos..)?.iter().position(|&b| !is_blank(b))?;
@@ -103,6 +105,7 @@ impl<'a> Fields<'a> {
     /// The `x y z` fields that come next, parsed, and the byte range
     /// `start..end` (relative to the line) they take; `what` names the line's
     /// kind in the message when one is missing (``"`v`"``).
+    #[inline]
     pub(super) fn xyz(
         &mut self,
         what: &str,
@@ -130,6 +133,7 @@ impl<'a> Fields<'a> {
 }
 
 /// Parses a finite coordinate on `line`.
+#[inline]
 fn parse_coordinate(
     field: &[u8],
     axis: &str,
@@ -167,6 +171,7 @@ fn parse_coordinate(
 
 /// Parses an optionally signed decimal integer; `None` when malformed or
 /// beyond 18 digits (no mesh has that many vertices).
+#[inline]
 pub(super) fn parse_index(text: &[u8]) -> Option<i64> {
     let (negative, digits) = match text.split_first() {
         Some((b'-', rest)) => (true, rest),
