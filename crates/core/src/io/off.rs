@@ -53,12 +53,41 @@ fn keyword(text: &[u8]) -> Option<(&[u8], &[u8])> {
         .then_some((prefix, rest))
 }
 
+/// The fields of the first line of `bytes` that has any (comments and
+/// blank lines skipped).
+fn header_fields(bytes: &[u8]) -> impl Iterator<Item = &[u8]> {
+    let mut lines = bytes.split(|&b| b == b'\n');
+    let mut fields = Fields::new(b"");
+    let mut started = false;
+    std::iter::from_fn(move || {
+        loop {
+            if let Some((_, _, field)) = fields.next_field() {
+                started = true;
+                return Some(field);
+            }
+            if started {
+                return None;
+            }
+            fields = Fields::new(lines.next()?);
+        }
+    })
+}
+
 /// Whether the first field of `head` (comments and blank lines skipped) is
 /// an OFF keyword; used to tell the format from the content.
 pub(super) fn starts_with_keyword(head: &[u8]) -> bool {
-    head.split(|&b| b == b'\n')
-        .find_map(|line| Fields::new(line).next_field())
-        .is_some_and(|(_, _, first)| keyword(first).is_some())
+    header_fields(head)
+        .next()
+        .is_some_and(|first| keyword(first).is_some())
+}
+
+fn binary_refused() -> IoError {
+    IoError::Unsupported {
+        format: FORMAT,
+        message:
+            "binary OFF files are not read; write the mesh as text OFF, or as PLY, glTF or STL"
+                .to_owned(),
+    }
 }
 
 fn parse_error(line: usize, message: String) -> IoError {
@@ -102,6 +131,10 @@ struct Reader<'l> {
 ///
 /// Errors name the 1-based line and the problem.
 pub fn read_off(bytes: &[u8], limits: &ReadLimits) -> Result<(Mesh, OffSource), IoError> {
+    // A binary file would fail the text checks first; say what it is.
+    if header_fields(bytes).nth(1) == Some(&b"BINARY"[..]) {
+        return Err(binary_refused());
+    }
     check_encoding(bytes, FORMAT)?;
     let mut reader = Reader {
         limits,
@@ -181,12 +214,7 @@ impl Reader<'_> {
             return Ok(());
         };
         if first == b"BINARY" {
-            return Err(IoError::Unsupported {
-                format: FORMAT,
-                message: "binary OFF files are not read; write the mesh as text OFF, or as PLY, \
-                          glTF or STL"
-                    .to_owned(),
-            });
+            return Err(binary_refused());
         }
         let count = |field: &[u8]| {
             parse_index(field)
@@ -501,7 +529,12 @@ mod tests {
                 "unsupported_content",
                 "line 1",
             ),
-            ("OFF BINARY\n\0\0".to_owned(), "parse_error", "NUL byte"),
+            (
+                "OFF BINARY\n\0\0".to_owned(),
+                "unsupported_content",
+                "binary",
+            ),
+            ("OFF\n4 1 0\0\n".to_owned(), "parse_error", "NUL byte"),
             ("OFF BINARY\n".to_owned(), "unsupported_content", "binary"),
             (
                 format!("OFF\nfour 1 0\n{SQUARE}{faces}"),
