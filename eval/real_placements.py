@@ -100,7 +100,7 @@ MAPS = {
 # Maps looked for in `--mni152` instead of `--data`; not run unless named in
 # `--only` (the whole-brain meshes have 315k-535k vertices; the peers' sweep
 # takes minutes).
-WHOLE_BRAIN = ("wm_brain", "gm_brain", "t1_white", "t1_pial", "t1_white_b", "t1_pial_b")
+FETCHED = ("wm_brain", "gm_brain", "t1_white", "t1_pial", "t1_white_b", "t1_pial_b")
 LEVEL = 127.5
 
 
@@ -278,10 +278,10 @@ def main():
     kinds = args.kinds.split(",")
     sweep = {} if args.no_peers else peers()
     for name, (prob, margin, spacing, *own) in MAPS.items():
-        if (args.only or name in WHOLE_BRAIN) and name not in args.only.split(","):
+        if (args.only or name in FETCHED) and name not in args.only.split(","):
             continue
         level = own[0] if own else args.level
-        path = os.path.join(args.mni152 if name in WHOLE_BRAIN else args.data, prob)
+        path = os.path.join(args.mni152 if name in FETCHED else args.data, prob)
         img = nib.load(path)
         data = np.asarray(img.dataobj, dtype=np.float64)
         affine = img.affine

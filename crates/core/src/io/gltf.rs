@@ -1154,12 +1154,7 @@ pub fn write_gltf(
     binary: bool,
     out: &mut Vec<u8>,
 ) -> Result<(), IoError> {
-    if positions.len() != src.num_vertices {
-        return Err(IoError::PositionCount {
-            expected: src.num_vertices,
-            got: positions.len(),
-        });
-    }
+    IoError::check_position_count(src.num_vertices, positions.len())?;
     check_f32(positions)?;
     let mut doc = Writer {
         root: src.root.clone(),
@@ -1554,12 +1549,7 @@ pub fn write_gltf_plain(
     out: &mut Vec<u8>,
 ) -> Result<(), IoError> {
     let n = mesh.num_vertices();
-    if positions.len() != n {
-        return Err(IoError::PositionCount {
-            expected: n,
-            got: positions.len(),
-        });
-    }
+    IoError::check_position_count(n, positions.len())?;
     check_f32(positions)?;
     let mut indices: Vec<u32> = Vec::new();
     for face in mesh.faces() {

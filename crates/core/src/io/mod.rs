@@ -408,6 +408,16 @@ impl IoError {
             IoError::GlbInvalid(_) => ErrorCode::GlbInvalid,
         }
     }
+
+    /// `Ok` when a writer got `got` positions for the `expected` it writes,
+    /// [`IoError::PositionCount`] otherwise.
+    pub(crate) fn check_position_count(expected: usize, got: usize) -> Result<(), IoError> {
+        if got == expected {
+            Ok(())
+        } else {
+            Err(IoError::PositionCount { expected, got })
+        }
+    }
 }
 
 /// Reads `bytes` as `format` with the format's default welding.
@@ -549,12 +559,7 @@ pub fn write_with(
     format: Format,
     options: &WriteOptions,
 ) -> Result<Vec<u8>, IoError> {
-    if positions.len() != doc.mesh.num_vertices() {
-        return Err(IoError::PositionCount {
-            expected: doc.mesh.num_vertices(),
-            got: positions.len(),
-        });
-    }
+    IoError::check_position_count(doc.mesh.num_vertices(), positions.len())?;
     let results = options.results.as_ref();
     if let Some(r) = results {
         let lengths = [

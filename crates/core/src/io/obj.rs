@@ -54,12 +54,7 @@ pub fn write_obj(src: &ObjSource, positions: &[DVec3], out: &mut Vec<u8>) -> Res
 /// `v x y z` line per vertex, then one `f` line per face (1-based indices).
 /// Used when the input was in another format.
 pub fn write_obj_plain(mesh: &Mesh, positions: &[DVec3], out: &mut Vec<u8>) -> Result<(), IoError> {
-    if positions.len() != mesh.num_vertices() {
-        return Err(IoError::PositionCount {
-            expected: mesh.num_vertices(),
-            got: positions.len(),
-        });
-    }
+    IoError::check_position_count(mesh.num_vertices(), positions.len())?;
     out.reserve(40 * positions.len() + 8 * mesh.face_vertices().len());
     for (v, p) in positions.iter().enumerate() {
         out.extend_from_slice(b"v ");

@@ -81,15 +81,6 @@ pub(super) fn starts_with_keyword(head: &[u8]) -> bool {
         .is_some_and(|first| keyword(first).is_some())
 }
 
-fn binary_refused() -> IoError {
-    IoError::Unsupported {
-        format: FORMAT,
-        message:
-            "binary OFF files are not read; write the mesh as text OFF, or as PLY, glTF or STL"
-                .to_owned(),
-    }
-}
-
 fn parse_error(line: usize, message: String) -> IoError {
     IoError::Parse {
         format: FORMAT,
@@ -132,8 +123,15 @@ struct Reader<'l> {
 /// Errors name the 1-based line and the problem.
 pub fn read_off(bytes: &[u8], limits: &ReadLimits) -> Result<(Mesh, OffSource), IoError> {
     // A binary file would fail the text checks first; say what it is.
-    if header_fields(bytes).nth(1) == Some(&b"BINARY"[..]) {
-        return Err(binary_refused());
+    let mut header = header_fields(bytes);
+    if header.next().is_some_and(|k| keyword(k).is_some()) && header.next() == Some(&b"BINARY"[..])
+    {
+        return Err(IoError::Unsupported {
+            format: FORMAT,
+            message: "binary OFF files are not read; write the mesh as text OFF, or as PLY, glTF \
+                      or STL"
+                .to_owned(),
+        });
     }
     check_encoding(bytes, FORMAT)?;
     let mut reader = Reader {
@@ -171,10 +169,7 @@ impl Reader<'_> {
                         ),
                     })
                 }
-                Some((_, glued)) => {
-                    self.part = Part::Counts;
-                    self.counts(fields, (!glued.is_empty()).then_some(glued), line)
-                }
+                Some((_, glued)) => self.counts(fields, (!glued.is_empty()).then_some(glued), line),
                 None => self.counts(Fields::new(text), None, line),
             },
             Part::Counts => self.counts(Fields::new(text), None, line),
@@ -213,9 +208,6 @@ impl Reader<'_> {
             self.part = Part::Counts;
             return Ok(());
         };
-        if first == b"BINARY" {
-            return Err(binary_refused());
-        }
         let count = |field: &[u8]| {
             parse_index(field)
                 .and_then(|n| usize::try_from(n).ok())
@@ -387,12 +379,7 @@ pub fn write_off(src: &OffSource, positions: &[DVec3], out: &mut Vec<u8>) -> Res
 /// `x y z` line per vertex and one `n i1 .. in` line per face. Used when the
 /// input was in another format.
 pub fn write_off_plain(mesh: &Mesh, positions: &[DVec3], out: &mut Vec<u8>) -> Result<(), IoError> {
-    if positions.len() != mesh.num_vertices() {
-        return Err(IoError::PositionCount {
-            expected: mesh.num_vertices(),
-            got: positions.len(),
-        });
-    }
+    IoError::check_position_count(mesh.num_vertices(), positions.len())?;
     out.reserve(40 * positions.len() + 8 * mesh.face_vertices().len());
     let mut number = itoa::Buffer::new();
     out.extend_from_slice(b"OFF\n");

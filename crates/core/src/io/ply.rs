@@ -957,12 +957,7 @@ pub fn write_ply(
     out: &mut Vec<u8>,
 ) -> Result<(), IoError> {
     let n = src.records.len();
-    if positions.len() != n {
-        return Err(IoError::PositionCount {
-            expected: n,
-            got: positions.len(),
-        });
-    }
+    IoError::check_position_count(n, positions.len())?;
     if let Some(v) = positions.iter().position(|p| !p.is_finite()) {
         return Err(crate::error::MeshError::NonFinitePosition { vertex: v }.into());
     }
@@ -1148,12 +1143,7 @@ pub fn write_ply_plain(
     out: &mut Vec<u8>,
 ) -> Result<(), IoError> {
     let n = mesh.num_vertices();
-    if positions.len() != n {
-        return Err(IoError::PositionCount {
-            expected: n,
-            got: positions.len(),
-        });
-    }
+    IoError::check_position_count(n, positions.len())?;
     if let Some(v) = positions.iter().position(|p| !p.is_finite()) {
         return Err(crate::error::MeshError::NonFinitePosition { vertex: v }.into());
     }

@@ -374,12 +374,7 @@ pub fn write_stl(
     out: &mut Vec<u8>,
 ) -> Result<(), IoError> {
     let n = src.num_triangles();
-    if positions.len() != 3 * n {
-        return Err(IoError::PositionCount {
-            expected: 3 * n,
-            got: positions.len(),
-        });
-    }
+    IoError::check_position_count(3 * n, positions.len())?;
     let triangles = positions.chunks_exact(3).map(|t| [t[0], t[1], t[2]]);
     if ascii {
         write_ascii(&src.name, triangles, out)
@@ -403,12 +398,7 @@ pub fn write_stl_plain(
     ascii: bool,
     out: &mut Vec<u8>,
 ) -> Result<(), IoError> {
-    if positions.len() != mesh.num_vertices() {
-        return Err(IoError::PositionCount {
-            expected: mesh.num_vertices(),
-            got: positions.len(),
-        });
-    }
+    IoError::check_position_count(mesh.num_vertices(), positions.len())?;
     let at = |i: u32| positions.get(i as usize).copied().unwrap_or_default();
     let triangles = mesh.faces().flat_map(|face| {
         let first = face.first().copied().unwrap_or(0);

@@ -213,12 +213,7 @@ impl TextSource {
     /// `x y z` fields; every other byte is copied unchanged.
     pub(super) fn write(&self, positions: &[DVec3], out: &mut Vec<u8>) -> Result<(), IoError> {
         let (bytes, coords) = (&self.bytes[..], &self.coords[..]);
-        if positions.len() != coords.len() {
-            return Err(IoError::PositionCount {
-                expected: coords.len(),
-                got: positions.len(),
-            });
-        }
+        IoError::check_position_count(coords.len(), positions.len())?;
         out.reserve(bytes.len() + bytes.len() / 8);
         let mut copied = 0;
         for (v, (p, &(start, end))) in positions.iter().zip(coords).enumerate() {
