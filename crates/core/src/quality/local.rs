@@ -188,17 +188,27 @@ pub(crate) struct FaceState {
 /// mesh's smallest angle, and a marching-cubes mesh of voxels six times
 /// as deep as wide, whose faces along the deep axis are needles of 6-7
 /// degrees, then ends with hundreds of angles under 1 degree. The same
-/// fraction as the sliver floor's: each face is held to half of what it
-/// started from.
+/// fraction as the sliver floor's: each face is held to at least half of
+/// what it started from, and closer to it just under the guard
+/// ([`input_sliver_floor`]).
 pub(crate) const INPUT_SLIVER_KEEP: f64 = super::SLIVER_FRACTION;
 
 /// The cosine of the smallest angle the angle-only moves may leave a face
 /// whose smallest input angle has the cosine `input_cos`: for a sliver of
-/// the input (sharper than the angle of cosine `cos_guard`),
-/// [`INPUT_SLIVER_KEEP`] of that angle; 1 (no floor) for the others.
+/// the input (sharper than the guard, the angle of cosine `cos_guard`),
+/// the larger of [`INPUT_SLIVER_KEEP`] of that angle and the angle less
+/// its shortfall to the guard (`2 angle - guard`); 1 (no floor) for the
+/// others. The second term makes the floor continuous at the guard, where
+/// the sliver fix holds the faces the input had sound: a face of 9.9
+/// degrees under a guard of 10 keeps 9.8, not 4.95. It binds within a
+/// third of the guard below it, where the side walls of voxels four times
+/// as deep as wide lie (9.9 degrees on their marching cubes); a needle
+/// sharper than two thirds of the guard keeps half its angle.
 fn input_sliver_floor(input_cos: f64, cos_guard: f64) -> f64 {
     if input_cos > cos_guard {
-        (INPUT_SLIVER_KEEP * input_cos.clamp(-1.0, 1.0).acos()).cos()
+        let angle = input_cos.clamp(-1.0, 1.0).acos();
+        let guard = cos_guard.clamp(-1.0, 1.0).acos();
+        (INPUT_SLIVER_KEEP * angle).max(2.0 * angle - guard).cos()
     } else {
         1.0
     }
@@ -1130,13 +1140,15 @@ mod tests {
     #[test]
     fn a_sliver_of_the_input_keeps_half_its_angle() {
         // A fan around vertex 0 whose first face is a sliver in the input
-        // (8 degrees at the centre). The centre has since moved where its
-        // last face is at 0.9 degrees and the sliver at 4.6; the tried move
-        // opens the last face a little (the star's smallest angle grows)
-        // but closes the sliver to 4.0, under half its input angle.
+        // (6.3 degrees at the centre, under two thirds of the 10 degree
+        // guard: its floor is half its angle). The centre has since moved
+        // where its last face is at 0.88 degrees and the sliver at 3.7;
+        // the tried move opens the last face a little (the star's smallest
+        // angle grows) but closes the sliver to 3.08, under half its input
+        // angle.
         let ring = [
             (10.0, 0.0),
-            (10.0, 1.4),
+            (10.0, 1.1),
             (0.0, 10.0),
             (-10.0, 0.0),
             (0.0, -10.0),
@@ -1148,7 +1160,7 @@ mod tests {
         let t = Topology::build(&m);
         let mut current = input.clone();
         current[0] = DVec3::new(1.75, -8.0, 0.0);
-        let tried = [(0, DVec3::new(-0.25, -9.4, 0.0))];
+        let tried = [(0, DVec3::new(0.0, -9.675, 0.0))];
         let cos_goal = 20f64.to_radians().cos();
         let cos_guard = 10f64.to_radians().cos();
         let mut plain = MoveTester::default();
@@ -1159,14 +1171,41 @@ mod tests {
         guarded.begin(&m, &t, &[0], &current, &input, cos_goal);
         let verdict = guarded.judge(&m, &tried, &current);
         assert!(verdict.input_sliver_shrunk && !verdict.improves(1.0));
-        // Closing it only to 4.6 degrees' neighbourhood is allowed: a
-        // smaller step the same way stays above half its input angle.
-        let half_way = [(0, DVec3::new(1.45, -8.2, 0.0))];
+        // Closing it only to 3.48 degrees is allowed: a smaller step the
+        // same way stays above half its input angle.
+        let half_way = [(0, DVec3::new(1.2, -8.5, 0.0))];
         let verdict = guarded.judge(&m, &half_way, &current);
         let sliver = min_angle_cos(half_way[0].1, input[1], input[2])
             .acos()
             .to_degrees();
-        assert!(sliver > 4.0 && !verdict.input_sliver_shrunk, "{sliver}");
+        assert!(sliver > 3.2 && !verdict.input_sliver_shrunk, "{sliver}");
+    }
+
+    #[test]
+    fn a_sliver_just_under_the_guard_keeps_nearly_all_of_its_angle() {
+        // The floor is continuous at the guard: a face of the input just
+        // sharper than it is held nearly where it was, not to half of it,
+        // and a needle far under it to half its angle.
+        let guard = 10f64;
+        let floor = |input_deg: f64| {
+            input_sliver_floor(input_deg.to_radians().cos(), guard.to_radians().cos())
+                .acos()
+                .to_degrees()
+        };
+        assert!((floor(9.9) - 9.8).abs() < 1e-9, "{}", floor(9.9));
+        assert!((floor(8.0) - 6.0).abs() < 1e-9, "{}", floor(8.0));
+        assert!((floor(6.0) - 3.0).abs() < 1e-9, "{}", floor(6.0));
+        assert_eq!(
+            input_sliver_floor(guard.to_radians().cos(), guard.to_radians().cos()),
+            1.0
+        );
+        // Never above the input's own angle, and rising with it.
+        let mut last = 0.0;
+        for tenth in 1..100 {
+            let a = f64::from(tenth) / 10.0;
+            assert!(floor(a) <= a + 1e-9 && floor(a) >= last, "{a}");
+            last = floor(a);
+        }
     }
 
     #[test]
