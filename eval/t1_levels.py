@@ -63,7 +63,7 @@ MARGIN = 3
 # fraction of the edge: spread evenly over the edge (standard deviation
 # 0.289) where the map varies smoothly across the boundary, bunched near one
 # point where the map steps from one value to another between two voxels
-# (the template's background, masked to a constant around the head). There
+# (the brain mask's edge: the template is 0 outside the brain). There
 # the trilinear level set is the template's own voxel staircase, softened:
 # a surface with no sub-voxel information, which the smoothers are not
 # meant to reproduce. Cases under this spread are summarised apart.
