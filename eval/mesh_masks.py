@@ -21,10 +21,10 @@ axes, other seeds a random rotation and sub-voxel offset, as in
   that keep the input's volume within 2% (the issue's promise for neurons
   and thin shapes: the settings closest to the truth on the thin parts
   shrink them);
-- the volume change of meshsmooth's output from its input (the mask's
-  volume), and the mask's own volume against the source surface's: a
-  voxelised neurite a voxel or two across holds a different volume than
-  the neurite;
+- the volume change of meshsmooth's output from its input, and the
+  input's volume against the source surface's (the voxel quads' is the
+  mask's; the marching cubes of a neurite a voxel or two across enclose
+  much less);
 - flipped faces, twisted quads, the smallest angle and the largest move (in
   voxels) of meshsmooth's output.
 
@@ -142,7 +142,7 @@ def main():
     figures = {kind: [] for kind in kinds}
     kept_figures = {kind: [] for kind in kinds}
     print(
-        "| surface | voxel | placement | mesh | vertices | mask volume / source | input | meshsmooth | best peer "
+        "| surface | voxel | placement | mesh | vertices | input volume / source | input | meshsmooth | best peer "
         "| ratio | setting | ratio within 2% volume | setting | volume change | flipped/twisted/min angle/max move (voxels) |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
@@ -168,8 +168,8 @@ def main():
                     out = ours(v, f)
                     q = mm.quality(v, f, out)
                     r_in, r_ours = rms(v), rms(out)
-                    mask_vol = mm.signed_volume(v, tris)
-                    change = mm.signed_volume(out, tris) / mask_vol - 1.0
+                    in_vol = mm.signed_volume(v, tris)
+                    change = mm.signed_volume(out, tris) / in_vol - 1.0
                     # The best setting, and the best of those that keep the
                     # volume within `VOLUME_KEPT` of the input's.
                     best, kept = None, None
@@ -181,7 +181,7 @@ def main():
                         r = rms(p)
                         if best is None or r < best[0]:
                             best = (r, setting)
-                        if abs(mm.signed_volume(p, tris) / mask_vol - 1.0) <= VOLUME_KEPT and (kept is None or r < kept[0]):
+                        if abs(mm.signed_volume(p, tris) / in_vol - 1.0) <= VOLUME_KEPT and (kept is None or r < kept[0]):
                             kept = (r, setting)
                     bar = "- | - | - | - | -"
                     if best:
@@ -195,7 +195,7 @@ def main():
                     else:
                         figures[kind].append(r_ours)
                     print(
-                        f"| {name} | {voxel:g} | {seed} | {kind} | {len(v)} | {mask_vol / source_volume:.3f} "
+                        f"| {name} | {voxel:g} | {seed} | {kind} | {len(v)} | {in_vol / source_volume:.3f} "
                         f"| {r_in:.4f} | {r_ours:.4f} | {bar} | {100 * change:+.2f}% "
                         f"| {q['flipped']}/{q['twisted']}/{q['min_angle']:.1f}/{q['max_move']:.2f} |",
                         flush=True,
