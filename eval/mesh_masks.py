@@ -107,7 +107,7 @@ def column_winding(g, tris, shape):
     t = np.repeat(np.arange(len(a)), count)
     # The column points of each face's bounding box, enumerated per face.
     local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    ij = lo[t] + np.stack([local // np.maximum(span[t, 1], 1), local % np.maximum(span[t, 1], 1)], axis=1)
+    ij = lo[t] + np.stack([local // span[t, 1], local % span[t, 1]], axis=1)
     x, y = ij[:, 0].astype(float), ij[:, 1].astype(float)
     ax, ay, bx, by, cx, cy = a[t, 0], a[t, 1], b[t, 0], b[t, 1], c[t, 0], c[t, 1]
     # Barycentric coordinates over the projected face (signed area nz).
@@ -203,21 +203,16 @@ def main():
     for kind, r in figures.items():
         if not r:
             continue
-        r = np.asarray(r)
         if sweep:
-            print(
-                f"{kind}, {len(r)} meshes: ours over the best peer setting geometric mean "
-                f"{np.exp(np.log(r).mean()):.3f}, worst {r.max():.3f}; closer on {(r < 1).sum()}"
-            )
-            k = np.asarray(kept_figures[kind])
-            if len(k):
+            print(f"{kind}, {len(r)} meshes: ours over the best peer setting {rp.ratio_summary(r)}")
+            k = kept_figures[kind]
+            if k:
                 print(
-                    f"{kind}, {len(k)} meshes: ours over the best peer setting within 2% of the input's volume "
-                    f"geometric mean {np.exp(np.log(k).mean()):.3f}, worst {k.max():.3f}; closer on {(k < 1).sum()}"
+                    f"{kind}, {len(k)} meshes: ours over the best peer setting within {VOLUME_KEPT:.0%} of the "
+                    f"input's volume {rp.ratio_summary(k)}"
                 )
         else:
-            print(f"{kind}, {len(r)} meshes: meshsmooth median {np.median(r):.4f}, geometric mean "
-                  f"{np.exp(np.log(r).mean()):.4f}, worst {r.max():.4f}")
+            print(f"{kind}, {len(r)} meshes: {rp.rms_summary(r)}")
 
 
 if __name__ == "__main__":

@@ -237,6 +237,20 @@ def truth_rms(truth, verts, margin):
     return float(np.sqrt((d * d).mean()))
 
 
+def ratio_summary(ratios):
+    """Ours over a bar, over many meshes: the geometric mean, the worst and
+    how many are under 1."""
+    r = np.asarray(ratios, dtype=float)
+    return f"geometric mean {np.exp(np.log(r).mean()):.3f}, worst {r.max():.3f}; closer on {(r < 1).sum()}"
+
+
+def rms_summary(rms):
+    """Ours alone over many meshes (no bar): the median, the geometric mean
+    and the worst truth RMS."""
+    r = np.asarray(rms, dtype=float)
+    return f"meshsmooth median {np.median(r):.4f}, geometric mean {np.exp(np.log(r).mean()):.4f}, worst {r.max():.4f}"
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "bio"))

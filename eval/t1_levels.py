@@ -178,18 +178,11 @@ def main():
     for (kind, t, step), r in figures.items():
         if not r:
             continue
-        r = np.asarray(r)
         which = f"{kind}, {t} truth, {len(r)} meshes" + (" at a step of the map" if step else "")
         if sweep:
-            print(
-                f"{which}: ours over the best peer setting geometric mean "
-                f"{np.exp(np.log(r).mean()):.3f}, worst {r.max():.3f}; closer on {(r < 1).sum()}"
-            )
+            print(f"{which}: ours over the best peer setting {rp.ratio_summary(r)}")
         else:
-            print(
-                f"{which}: meshsmooth median {np.median(r):.4f}, "
-                f"geometric mean {np.exp(np.log(r).mean()):.4f}, worst {r.max():.4f}"
-            )
+            print(f"{which}: {rp.rms_summary(r)}")
 
 
 if __name__ == "__main__":
