@@ -37,18 +37,15 @@ where more faces were entered than left below it.
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import compare_peers as cp  # noqa: E402
 import meshmetrics as mm  # noqa: E402
 import real_placements as rp  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
 # Surfaces and the voxel sizes they are cut at, in the file's units. The
 # neuron's neurites are 60-600 nm across (half an edge to five), so 40 and
 # 64 nm voxels make the thinnest one to two voxels across and the soma
@@ -58,9 +55,6 @@ SURFACES = {
     "neuron": ("hemibrain_neuron_722817260.obj", (64.0, 40.0)),
     "molecule": ("gamer_2jho.obj", (0.5, 1.0)),
 }
-# The volume change a peer setting may make and still count for the second
-# bar: the promise for neurons and thin shapes.
-VOLUME_KEPT = 0.02
 # Empty voxels around the mask: every grid cell the mesh's bounding box
 # touches plus this many, so the mask never reaches the grid's edge.
 PAD = 3
@@ -125,27 +119,10 @@ def column_winding(g, tris, shape):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data" / "bio"))
-    ap.add_argument("--binary", default=str(ROOT / "target" / "release" / "meshsmooth"))
-    ap.add_argument("--only", default=",".join(SURFACES))
-    ap.add_argument("--placements", type=int, default=3)
-    ap.add_argument("--kinds", default="vox,mc")
-    ap.add_argument("--no-peers", action="store_true", help="meshsmooth alone")
-    ap.add_argument("--params", help="meshsmooth parameter file")
-    args = ap.parse_args()
     import trimesh
 
-    ours = cp.meshsmooth(args.binary, ["--params", args.params] if args.params else [])
-    sweep = {} if args.no_peers else rp.peers()
-    kinds = args.kinds.split(",")
-    figures = {kind: [] for kind in kinds}
-    kept_figures = {kind: [] for kind in kinds}
-    print(
-        "| surface | voxel | placement | mesh | vertices | input volume / source | input | meshsmooth | best peer "
-        "| ratio | setting | ratio within 2% volume | setting | volume change | flipped/twisted/min angle/max move (voxels) |"
-    )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    args, ours, bars, kinds = rp.mask_arguments(__doc__, SURFACES, 3)
+    rp.mask_header(["surface", "voxel", "placement", "mesh"])
     for name in args.only.split(","):
         path, voxels = SURFACES[name]
         src_v, src_f = mm.read_obj(str(Path(args.data) / path))
@@ -154,65 +131,9 @@ def main():
             for seed in range(args.placements):
                 g = grid_frame(src_v, voxel, seed)
                 source = trimesh.Trimesh(g, src_t, process=False)
-                source_volume = mm.signed_volume(g, src_t)
-
-                def rms(points, source=source):
-                    _, d, _ = trimesh.proximity.closest_point(source, points)
-                    return float(np.sqrt((d * d).mean()))
-
-                mask = winding_mask(g, src_t)
-                qv, qf = rp.voxel_quads(mask)
-                for kind in kinds:
-                    v, f = (qv, qf) if kind == "vox" else rp.marching_cubes(mask, mm.signed_volume(qv, mm.triangles(qf)))
-                    tris = mm.triangles(f)
-                    out = ours(v, f)
-                    q = mm.quality(v, f, out)
-                    r_in, r_ours = rms(v), rms(out)
-                    in_vol = mm.signed_volume(v, tris)
-                    change = mm.signed_volume(out, tris) / in_vol - 1.0
-                    # The best setting, and the best of those that keep the
-                    # volume within `VOLUME_KEPT` of the input's.
-                    best, kept = None, None
-                    for setting, run in sweep.items():
-                        try:
-                            p = run(v, f)
-                        except Exception:  # a peer that refuses a mesh is left out
-                            continue
-                        r = rms(p)
-                        if best is None or r < best[0]:
-                            best = (r, setting)
-                        if abs(mm.signed_volume(p, tris) / in_vol - 1.0) <= VOLUME_KEPT and (kept is None or r < kept[0]):
-                            kept = (r, setting)
-                    bar = "- | - | - | - | -"
-                    if best:
-                        figures[kind].append(r_ours / best[0])
-                        bar = f"{best[0]:.4f} | {r_ours / best[0]:.3f} | {best[1]} | "
-                        if kept:
-                            kept_figures[kind].append(r_ours / kept[0])
-                            bar += f"{r_ours / kept[0]:.3f} | {kept[1]}"
-                        else:
-                            bar += "- | none"
-                    else:
-                        figures[kind].append(r_ours)
-                    print(
-                        f"| {name} | {voxel:g} | {seed} | {kind} | {len(v)} | {in_vol / source_volume:.3f} "
-                        f"| {r_in:.4f} | {r_ours:.4f} | {bar} | {100 * change:+.2f}% "
-                        f"| {q['flipped']}/{q['twisted']}/{q['min_angle']:.1f}/{q['max_move']:.2f} |",
-                        flush=True,
-                    )
-    for kind, r in figures.items():
-        if not r:
-            continue
-        if sweep:
-            print(f"{kind}, {len(r)} meshes: ours over the best peer setting {rp.ratio_summary(r)}")
-            k = kept_figures[kind]
-            if k:
-                print(
-                    f"{kind}, {len(k)} meshes: ours over the best peer setting within {VOLUME_KEPT:.0%} of the "
-                    f"input's volume {rp.ratio_summary(k)}"
-                )
-        else:
-            print(f"{kind}, {len(r)} meshes: {rp.rms_summary(r)}")
+                for kind, cells in rp.mask_rows(winding_mask(g, src_t), source, kinds, ours, bars):
+                    print(f"| {name} | {voxel:g} | {seed} | {kind} | {cells}", flush=True)
+    bars.print_summary()
 
 
 if __name__ == "__main__":
