@@ -18,7 +18,10 @@ is meshed as voxel quads and as marching cubes, smoothed by meshsmooth and
 by the peers' sweep, and measured against the level surface. No constant
 of meshsmooth was tuned on these meshes.
 
-    python3 -u eval/density_masks.py [--only 4A_1.0,4A_1.5,6A_1.5] [--placements 2] [--kinds vox,mc] [--no-peers] [--params FILE.json]
+    python3 -u eval/density_masks.py [--only 4A_0.7,4A_1.0,4A_1.5,6A_1.5] [--placements 2] [--kinds vox,mc] [--no-peers] [--params FILE.json]
+
+With the peers' sweep a placement takes minutes (the 0.7 A map's, about
+ten on two cores); `--no-peers` takes under a minute.
 
 Per mesh (a map at one resolution and voxel size, at one placement: seed 0
 the PDB's axes, other seeds a random rotation and sub-voxel offset, as in
