@@ -299,11 +299,11 @@ class Bars:
                 )
 
 
-# The columns of `mask_rows`' cells, and a table's rule for `lead` columns
-# before them.
+# The columns of `mask_rows`' cells.
 MASK_COLUMNS = (
     "vertices | input volume / truth's | input | meshsmooth | best peer | ratio | setting "
-    "| ratio within 2% volume | setting | volume change | flipped/twisted/min angle/max move (voxels) |"
+    f"| ratio within {MASK_VOLUME_KEPT:.0%} volume | setting | volume change "
+    "| flipped/twisted/min angle/max move (voxels) |"
 )
 
 

@@ -40,8 +40,8 @@
 //! of a voxel mesh moves more than `sqrt(3) / 2` voxel, and the lattice edge
 //! short of its voxel centres ([`CROSSING_SHARE`]) on a marching-cubes
 //! mesh, whose ball is also at most `max_displacement`
-//! spacings of the vertex's edge, and a share of either
-//! ([`MARCHING_CUBES_BALL_SHARE`]) (the quality fixes get twice the ball,
+//! spacings of the vertex's edge and then narrowed by
+//! [`MARCHING_CUBES_BALL_SHARE`] (the quality fixes get twice the ball,
 //! capped at twice `max_displacement` spacings along each axis where the
 //! spacing differs by axis, or on a lattice the ellipsoid of twice the
 //! box's half-widths: one voxel).
