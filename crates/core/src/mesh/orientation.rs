@@ -41,7 +41,7 @@ pub struct Orientation {
     pub inside_out: bool,
     /// Bodies turned whole on their own: each enclosed a negative volume,
     /// lay within no other body's bounding box, and another body so placed
-    /// was wound outward ([`inside_out_bodies`]). Never with `inside_out`.
+    /// was wound outward. Never with `inside_out`.
     pub inside_out_bodies: usize,
     /// Faces of those bodies (included in `turned_faces`).
     pub inside_out_body_faces: usize,
