@@ -54,9 +54,15 @@ def read_obj(path):
 
 
 def write_obj(path, verts, faces):
+    """Writes each coordinate in full (the shortest text that reads back to
+    the same double): every tool is to smooth the file's own mesh, and on a
+    mesh in large units (the neuron's coordinates, around 30,000 nm) nine
+    significant digits move its vertices by up to 5e-5, which a smoother's
+    thresholds can turn into other decisions. The peers called from Python
+    get the arrays themselves."""
     with open(path, "w") as f:
         for v in verts:
-            f.write(f"v {v[0]:.9g} {v[1]:.9g} {v[2]:.9g}\n")
+            f.write(f"v {float(v[0])!r} {float(v[1])!r} {float(v[2])!r}\n")
         for face in faces:
             f.write("f " + " ".join(str(i + 1) for i in face) + "\n")
 
