@@ -31,7 +31,7 @@
 //! keeping within [`BULGE_TOLERANCE`] of theirs.
 
 use crate::fit::normals::vertex_normals;
-use crate::mesh::{Mesh, Topology, cone_volume6_about};
+use crate::mesh::{Mesh, Topology, cone_volume6};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -76,9 +76,6 @@ pub struct VolumeParts {
     component: Vec<u32>,
     /// Each component's signed volume at the input positions.
     component_volumes: Vec<f64>,
-    /// Each component's apex: the mean of its input positions. The cones of
-    /// every volume of the component are taken from it ([`part_volumes`]).
-    apexes: Vec<DVec3>,
     /// The offset beyond which a component has collapsed
     /// ([`MAX_VOLUME_OFFSET`] of the input's mean edge length).
     collapse_offset: f64,
@@ -117,23 +114,7 @@ impl VolumeParts {
     /// as one body.
     pub fn new(mesh: &Mesh, topo: &Topology, bodies: Option<&[u32]>) -> Self {
         let (component, count) = topo.component_ids();
-        let mut sums = vec![(DVec3::ZERO, 0u32); count];
-        for (&c, &p) in component.iter().zip(mesh.positions()) {
-            let (sum, n) = &mut sums[c as usize];
-            *sum += p;
-            *n += 1;
-        }
-        let apexes: Vec<DVec3> = sums
-            .into_iter()
-            .map(|(sum, n)| sum / f64::from(n.max(1)))
-            .collect();
-        let component_volumes = part_volumes(
-            mesh,
-            mesh.positions(),
-            component,
-            count,
-            (component, &apexes),
-        );
+        let component_volumes = part_volumes(mesh, mesh.positions(), component, count);
         let bodies = bodies.filter(|b| b.len() == component.len());
         let mut body_of = vec![0u32; count];
         if let Some(bodies) = bodies {
@@ -151,19 +132,12 @@ impl VolumeParts {
             .iter()
             .map(|&c| keys.binary_search(&key(c)).unwrap_or(0) as u32)
             .collect();
-        let targets = part_volumes(
-            mesh,
-            mesh.positions(),
-            &part_of,
-            keys.len(),
-            (component, &apexes),
-        );
+        let targets = part_volumes(mesh, mesh.positions(), &part_of, keys.len());
         VolumeParts {
             part_of,
             targets,
             component: component.to_vec(),
             component_volumes,
-            apexes,
             collapse_offset: MAX_VOLUME_OFFSET * mesh.mean_edge_length(),
             smooth_surface: false,
         }
@@ -177,7 +151,7 @@ impl VolumeParts {
     /// collapsed.
     fn without_collapsed(&self, mesh: &Mesh, positions: &[DVec3]) -> Option<(VolumeParts, f64)> {
         let count = self.component_volumes.len();
-        let now = part_volumes(mesh, positions, &self.component, count, self.cones());
+        let now = part_volumes(mesh, positions, &self.component, count);
         let face_area: Vec<f64> = (0..mesh.num_faces())
             .into_par_iter()
             .with_min_len(4096)
@@ -203,13 +177,8 @@ impl VolumeParts {
                 *part = NO_PART;
             }
         }
-        settled.targets = part_volumes(
-            mesh,
-            mesh.positions(),
-            &settled.part_of,
-            self.targets.len(),
-            self.cones(),
-        );
+        settled.targets =
+            part_volumes(mesh, mesh.positions(), &settled.part_of, self.targets.len());
         Some((settled, change))
     }
 
@@ -235,53 +204,20 @@ impl VolumeParts {
 
     /// Each part's signed volume at `positions`.
     fn volumes(&self, mesh: &Mesh, positions: &[DVec3]) -> Vec<f64> {
-        part_volumes(
-            mesh,
-            positions,
-            &self.part_of,
-            self.targets.len(),
-            self.cones(),
-        )
-    }
-
-    /// Each vertex's component and the components' apexes, for
-    /// [`part_volumes`].
-    fn cones(&self) -> (&[u32], &[DVec3]) {
-        (&self.component, &self.apexes)
+        part_volumes(mesh, positions, &self.part_of, self.targets.len())
     }
 }
 
 /// The signed volume at `positions` of each of `count` parts, vertex `v` in
 /// part `part_of[v]` (a face belongs to its first corner's part; faces of
-/// [`NO_PART`] count nowhere), each face's cone taken from the apex of its
-/// first corner's component (`cones`: each vertex's component, each
-/// component's apex). A component whose faces close up encloses the same
-/// volume from any apex; one with edges of an odd number of faces (a
-/// neuron's junctions, where three sheets meet) does not, and an apex that
-/// moves with the mesh (its input centroid) keeps its restoration
-/// independent of where the file puts the origin and of the vertices'
-/// order. The faces' volumes are computed in parallel and
-/// summed in face order: the same bits whatever the thread count.
-fn part_volumes(
-    mesh: &Mesh,
-    positions: &[DVec3],
-    part_of: &[u32],
-    count: usize,
-    cones: (&[u32], &[DVec3]),
-) -> Vec<f64> {
-    let (component, apexes) = cones;
+/// [`NO_PART`] count nowhere). The
+/// faces' volumes are computed in parallel and summed in face order: the
+/// same bits whatever the thread count.
+fn part_volumes(mesh: &Mesh, positions: &[DVec3], part_of: &[u32], count: usize) -> Vec<f64> {
     let per_face: Vec<f64> = (0..mesh.num_faces())
         .into_par_iter()
         .with_min_len(4096)
-        .map(|f| {
-            let face = mesh.face(f);
-            let apex = face
-                .first()
-                .and_then(|&v| apexes.get(component[v as usize] as usize))
-                .copied()
-                .unwrap_or_default();
-            cone_volume6_about(face, positions, apex) / 6.0
-        })
+        .map(|f| cone_volume6(mesh.face(f), positions) / 6.0)
         .collect();
     sum_by_part(mesh, part_of, &per_face, count)
 }
@@ -485,50 +421,6 @@ mod tests {
     use super::*;
     use crate::mesh::{Topology, signed_volume};
     use crate::shapes::{self, voxel_sphere};
-
-    #[test]
-    fn a_surface_with_a_fin_is_restored_alike_wherever_the_origin_lies() {
-        // A voxel sphere with a fin: one more triangle on one of its edges,
-        // which three faces then share (as at a neuron's junctions). Such
-        // faces enclose no volume independent of the cones' apex, and the
-        // restoration of the same shrink must not depend on where the
-        // origin lies.
-        let (_, sphere) = voxel_sphere(6.0);
-        let mut positions = sphere.positions().to_vec();
-        let mut faces: Vec<Vec<u32>> = sphere.faces().map(<[u32]>::to_vec).collect();
-        let (a, b) = (faces[0][0], faces[0][1]);
-        let tip = (positions[a as usize] + positions[b as usize]) * 0.5 + DVec3::new(0.3, 0.7, 0.2);
-        positions.push(tip);
-        faces.push(vec![a, b, positions.len() as u32 - 1]);
-        let run = |shift: DVec3| {
-            let moved: Vec<DVec3> = positions.iter().map(|&p| p + shift).collect();
-            let mesh = Mesh::from_polygons(moved, &faces).unwrap();
-            let topo = Topology::build(&mesh);
-            let parts = VolumeParts::new(&mesh, &topo, None);
-            let c = mesh.positions().iter().sum::<DVec3>() / mesh.num_vertices() as f64;
-            let mut p: Vec<DVec3> = mesh
-                .positions()
-                .iter()
-                .map(|&p| c + 0.99 * (p - c))
-                .collect();
-            let movable = vec![true; p.len()];
-            let done = restore_volume(&mesh, &topo, &parts, &mut p, &movable, 1.0, |_| true);
-            (
-                done.mean_offset,
-                p.iter().map(|&q| q - shift).collect::<Vec<_>>(),
-            )
-        };
-        let (here, at_home) = run(DVec3::ZERO);
-        let (there, far) = run(DVec3::new(4000.0, -2500.0, 1200.0));
-        assert!(here > 0.0, "{here}");
-        assert!((here - there).abs() <= 1e-9 * here, "{here} vs {there}");
-        let most = at_home
-            .iter()
-            .zip(&far)
-            .map(|(p, q)| (*p - *q).length())
-            .fold(0.0, f64::max);
-        assert!(most < 1e-6, "{most}");
-    }
 
     #[test]
     fn restores_the_volume_unless_the_result_is_rejected() {
