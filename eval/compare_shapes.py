@@ -58,9 +58,7 @@ def curvature_ratio(verts, faces, out):
     """The curvature variation of `out` (an output of a smoother run on
     (`verts`, `faces`)) over the input's, both in the input's mean edge: the
     issue asks thin shapes for less than 1."""
-    edges = mm.edges_of(faces)
-    adj = mm.adjacency(len(verts), edges)
-    edge_len = float(np.linalg.norm(verts[edges[:, 0]] - verts[edges[:, 1]], axis=1).mean())
+    adj, edge_len = mm.input_adjacency(verts, faces)
     return mm.curvature_variation(out, faces, adj, edge_len) / mm.curvature_variation(verts, faces, adj, edge_len)
 
 

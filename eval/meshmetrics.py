@@ -283,13 +283,21 @@ def quality(input_verts, faces, verts):
     }
 
 
+def input_adjacency(input_verts, faces):
+    """The vertex adjacency of `faces` and the input's mean edge length: the
+    unit the curvature variation is measured in, for the input and every
+    output alike."""
+    edges = edges_of(faces)
+    adj = adjacency(len(input_verts), edges)
+    edge_len = float(np.linalg.norm(input_verts[edges[:, 0]] - input_verts[edges[:, 1]], axis=1).mean())
+    return adj, edge_len
+
+
 def measure(input_verts, faces, verts, voxel=None, truth=None, truth_margin=None):
     """All measures of `verts` (an output of a smoother run on
     (`input_verts`, `faces`)) as a dict."""
     n = len(verts)
-    edges = edges_of(faces)
-    adj = adjacency(n, edges)
-    edge_len = float(np.linalg.norm(input_verts[edges[:, 0]] - input_verts[edges[:, 1]], axis=1).mean())
+    adj, edge_len = input_adjacency(input_verts, faces)
     unit = voxel if voxel else edge_len
     tris = triangles(faces)
     counts = {}
