@@ -10,7 +10,7 @@ use crate::fit::quadric_fit::FitModel;
 use crate::mesh::lattice::{is_marching_cubes_lattice, is_voxel_lattice};
 use crate::mesh::{
     Mesh, Orientation, PairedFaces, Topology, VertexKind, mean_edge_length, orientation,
-    paired_voxel_faces, regions, signed_volume,
+    paired_voxel_faces, regions,
 };
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
 use crate::quality::{SLIVER_FRACTION, has_sliver_angle, improve, is_defective};
@@ -689,8 +689,9 @@ fn restore_after_passes(run: &Run, positions: &mut [DVec3]) -> (Restored, Option
     let refused = restored.left.abs() > VOLUME_RESTORED
         && (restored.mean_offset == 0.0 || restored.left.abs() > VOLUME_WARNING);
     let change = || {
-        let target = run.mesh.signed_volume();
-        (signed_volume(run.mesh, positions) - target) / target.abs()
+        let apexes = parts.apexes();
+        let target = apexes.volume(run.mesh, run.mesh.positions());
+        (apexes.volume(run.mesh, positions) - target) / target.abs()
     };
     (restored, refused.then(change))
 }
@@ -1414,6 +1415,7 @@ fn baseline(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::mesh::signed_volume;
     use crate::shapes::{self, VoxelMask, voxel_boundary_mesh};
 
     /// The pipeline at its default parameters.

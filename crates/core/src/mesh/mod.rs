@@ -11,8 +11,11 @@ mod paired;
 mod regions;
 mod ring;
 mod topology;
+mod volume;
 #[cfg(test)]
 pub(crate) use topology::tests::{grid as test_grid, unit_cube as test_unit_cube};
+#[cfg(test)]
+pub(crate) use volume::tests::walled_sphere as test_walled_sphere;
 
 pub use bodies::{TouchingBodies, body_ids, touching_bodies};
 pub use orientation::{Orientation, orientation};
@@ -21,6 +24,7 @@ pub use regions::{OUTSIDE, Regions, regions};
 pub use ring::RingWalker;
 pub(crate) use topology::has_repeated_corner;
 pub use topology::{Topology, VertexKind};
+pub use volume::VolumeApexes;
 
 use crate::error::MeshError;
 use glam::DVec3;
@@ -268,7 +272,9 @@ pub fn mean_edge_length(mesh: &Mesh, positions: &[DVec3]) -> f64 {
 }
 
 /// Signed enclosed volume of `mesh` with alternative `positions` (fan
-/// triangulation of each face, divergence theorem).
+/// triangulation of each face, divergence theorem), the cones taken from
+/// the origin: for a closed surface. Where edges may have an odd number of
+/// faces, [`VolumeApexes::volume`] measures alike wherever the origin lies.
 pub fn signed_volume(mesh: &Mesh, positions: &[DVec3]) -> f64 {
     sum_over_face_chunks(mesh.num_faces(), |faces| {
         let mut v = 0.0;

@@ -10,7 +10,7 @@
 //! below and above thresholds are sums of whole bins (every threshold is a
 //! bin edge): "below 15" is `[0, 15)`, "above 120" is `[120, 180]`.
 
-use crate::mesh::{Mesh, Topology, VertexKind, vector_area};
+use crate::mesh::{Mesh, Topology, VertexKind, VolumeApexes, vector_area};
 use crate::quality::local::{
     corners, cos_between, for_each_split_triangle, has_repeated_corner, is_inverted, is_twisted,
     triangle_cosines,
@@ -153,8 +153,6 @@ struct FaceAcc {
     inverted: u64,
     side_sum: f64,
     sides: u64,
-    volume: f64,
-    input_volume: f64,
 }
 
 /// Measures `positions` on `mesh` against `input` (the input positions,
@@ -189,10 +187,16 @@ pub fn measure_stage(
     let threshold = short_edge_fraction * mean_edge_length;
     let (short_edges, boundary_edges) = edge_pass(topo, positions, threshold);
     let displacement = vertex_pass(positions, input);
-    let volume = (boundary_edges == 0 && mesh.num_faces() > 0).then(|| VolumeMeasure {
-        volume: faces.volume,
-        relative_change: (faces.input_volume != 0.0)
-            .then(|| (faces.volume - faces.input_volume) / faces.input_volume.abs()),
+    let volume = (boundary_edges == 0 && mesh.num_faces() > 0).then(|| {
+        // The restoration's measure of the volume (`VolumeApexes`), so
+        // that the report and the restoration agree on any surface.
+        let apexes = VolumeApexes::new(topo, input);
+        let (volume, input_volume) = (apexes.volume(mesh, positions), apexes.volume(mesh, input));
+        VolumeMeasure {
+            volume,
+            relative_change: (input_volume != 0.0)
+                .then(|| (volume - input_volume) / input_volume.abs()),
+        }
     });
     StageMeasures {
         mean_edge_length,
@@ -221,8 +225,6 @@ fn face_pass(mesh: &Mesh, positions: &[DVec3], input: &[DVec3], table: &AngleTab
                 inverted: 0,
                 side_sum: 0.0,
                 sides: 0,
-                volume: 0.0,
-                input_volume: 0.0,
             };
             for f in c * CHUNK..((c + 1) * CHUNK).min(nf) {
                 let face = mesh.face(f);
@@ -246,8 +248,6 @@ fn face_pass(mesh: &Mesh, positions: &[DVec3], input: &[DVec3], table: &AngleTab
         inverted: 0,
         side_sum: 0.0,
         sides: 0,
-        volume: 0.0,
-        input_volume: 0.0,
     };
     for c in &chunks {
         total.triangles.merge(&c.triangles);
@@ -256,11 +256,7 @@ fn face_pass(mesh: &Mesh, positions: &[DVec3], input: &[DVec3], table: &AngleTab
         total.inverted += c.inverted;
         total.side_sum += c.side_sum;
         total.sides += c.sides;
-        total.volume += c.volume;
-        total.input_volume += c.input_volume;
     }
-    total.volume /= 6.0;
-    total.input_volume /= 6.0;
     total
 }
 
@@ -294,8 +290,6 @@ fn measure_triangle(
     let n = e01.cross(-e20);
     let m = (q1 - q0).cross(q2 - q0);
     acc.inverted += (n.dot(m) < 0.0) as u64;
-    acc.volume += p0.dot(p1.cross(p2));
-    acc.input_volume += q0.dot(q1.cross(q2));
     for c in [
         cos_ll(-e01.dot(e20), l01 * l20),
         cos_ll(-e12.dot(e01), l12 * l01),
@@ -335,8 +329,6 @@ fn measure_quad(
     let m2 = g02.cross(q3 - q0);
     acc.twisted += (n1.dot(n2) < 0.0) as u64;
     acc.inverted += (n1.dot(m1) < 0.0 || n2.dot(m2) < 0.0 || (n1 + n2).dot(m1 + m2) < 0.0) as u64;
-    acc.volume += p0.dot(p1.cross(p2) + p2.cross(p3));
-    acc.input_volume += q0.dot(q1.cross(q2) + q2.cross(q3));
     let at1 = cos_ll(-e01.dot(e12), l01 * l12);
     let at3 = cos_ll(-e23.dot(e30), l23 * l30);
     for c in [
@@ -376,8 +368,6 @@ fn measure_polygon(
         prev = p;
     }
     acc.sides += k as u64;
-    acc.volume += fan_volume(face, positions);
-    acc.input_volume += fan_volume(face, input);
     acc.twisted += is_twisted(face, positions) as u64;
     acc.inverted += is_inverted(face, positions, input) as u64;
     if has_repeated_corner(face) {
@@ -394,18 +384,6 @@ fn measure_polygon(
         let b = positions[face[(j + 1) % k] as usize];
         acc.corners.add(table, cos_between(a - p, b - p));
     }
-}
-
-/// Six times the signed volume of the cone from the origin over `face`
-/// (fan from corner 0).
-#[inline]
-fn fan_volume(face: &[u32], positions: &[DVec3]) -> f64 {
-    let o = positions[face[0] as usize];
-    let mut v = 0.0;
-    for j in 1..face.len() - 1 {
-        v += o.dot(positions[face[j] as usize].cross(positions[face[j + 1] as usize]));
-    }
-    v
 }
 
 /// Short edges and boundary edges.
@@ -667,6 +645,27 @@ mod tests {
         assert!((s.displacement.max - 2.0).abs() < 1e-12);
         assert!((s.displacement.mean - 1.0).abs() < 1e-12);
         assert!((s.displacement.rms - 2f64.sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_volume_change_of_a_walled_surface_does_not_depend_on_the_origin() {
+        // Faces sharing an edge three times enclose no volume independent
+        // of the cones' apex: the report must measure it as the
+        // restoration does, wherever the file puts the origin.
+        let change = |shift: DVec3| {
+            let m = crate::mesh::test_walled_sphere(4.0, shift);
+            let t = Topology::build(&m);
+            let c = m.positions().iter().sum::<DVec3>() / m.num_vertices() as f64;
+            let shrunk: Vec<DVec3> = m.positions().iter().map(|&p| c + 0.99 * (p - c)).collect();
+            let s = measure_stage(&m, &t, &shrunk, m.positions(), None, 0.2);
+            s.volume.unwrap().relative_change.unwrap()
+        };
+        let (here, there) = (
+            change(DVec3::ZERO),
+            change(DVec3::new(400.0, -250.0, 120.0)),
+        );
+        assert!((here - (0.99f64.powi(3) - 1.0)).abs() < 1e-3, "{here}");
+        assert!((here - there).abs() < 1e-9, "{here} vs {there}");
     }
 
     #[test]

@@ -225,7 +225,10 @@ impl Default for AngleStats {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct VolumeMeasure {
     /// Signed volume by the divergence theorem, in cubic mesh units
-    /// (positive for outward normals).
+    /// (positive for outward normals), each connected component's cones
+    /// taken from its input centroid: a surface with edges of an odd
+    /// number of faces (a neuron's junctions) measures alike wherever its
+    /// file puts the origin ([`crate::mesh::VolumeApexes`]).
     pub volume: f64,
     /// `(volume - input volume) / |input volume|`; absent when the input
     /// volume is 0.

@@ -31,7 +31,7 @@
 //! keeping within [`BULGE_TOLERANCE`] of theirs.
 
 use crate::fit::normals::vertex_normals;
-use crate::mesh::{Mesh, Topology, cone_volume6};
+use crate::mesh::{Mesh, Topology, VolumeApexes};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -72,8 +72,11 @@ pub struct VolumeParts {
     part_of: Vec<u32>,
     /// Each part's signed volume at the input positions.
     targets: Vec<f64>,
-    /// Each vertex's connected component.
-    component: Vec<u32>,
+    /// Each vertex's connected component and the apexes every volume is
+    /// taken from ([`VolumeApexes`]: each component's input centroid, so
+    /// that a surface with edges of an odd number of faces is restored
+    /// alike wherever its file puts the origin).
+    apexes: VolumeApexes,
     /// Each component's signed volume at the input positions.
     component_volumes: Vec<f64>,
     /// The offset beyond which a component has collapsed
@@ -113,8 +116,9 @@ impl VolumeParts {
     /// cavities, as they would be alone. `bodies` of another length count
     /// as one body.
     pub fn new(mesh: &Mesh, topo: &Topology, bodies: Option<&[u32]>) -> Self {
-        let (component, count) = topo.component_ids();
-        let component_volumes = part_volumes(mesh, mesh.positions(), component, count);
+        let apexes = VolumeApexes::new(topo, mesh.positions());
+        let (component, count) = (apexes.component(), apexes.count());
+        let component_volumes = part_volumes(mesh, mesh.positions(), component, count, &apexes);
         let bodies = bodies.filter(|b| b.len() == component.len());
         let mut body_of = vec![0u32; count];
         if let Some(bodies) = bodies {
@@ -132,11 +136,11 @@ impl VolumeParts {
             .iter()
             .map(|&c| keys.binary_search(&key(c)).unwrap_or(0) as u32)
             .collect();
-        let targets = part_volumes(mesh, mesh.positions(), &part_of, keys.len());
+        let targets = part_volumes(mesh, mesh.positions(), &part_of, keys.len(), &apexes);
         VolumeParts {
             part_of,
             targets,
-            component: component.to_vec(),
+            apexes,
             component_volumes,
             collapse_offset: MAX_VOLUME_OFFSET * mesh.mean_edge_length(),
             smooth_surface: false,
@@ -151,13 +155,14 @@ impl VolumeParts {
     /// collapsed.
     fn without_collapsed(&self, mesh: &Mesh, positions: &[DVec3]) -> Option<(VolumeParts, f64)> {
         let count = self.component_volumes.len();
-        let now = part_volumes(mesh, positions, &self.component, count);
+        let component = self.apexes.component();
+        let now = part_volumes(mesh, positions, component, count, &self.apexes);
         let face_area: Vec<f64> = (0..mesh.num_faces())
             .into_par_iter()
             .with_min_len(4096)
             .map(|f| crate::mesh::vector_area(mesh.face(f), positions).length())
             .collect();
-        let area = sum_by_part(mesh, &self.component, &face_area, count);
+        let area = sum_by_part(mesh, component, &face_area, count);
         let collapsed: Vec<bool> = (0..count)
             .map(|c| {
                 let (input, v) = (self.component_volumes[c], now[c]);
@@ -173,12 +178,17 @@ impl VolumeParts {
             .sum();
         let mut settled = self.clone();
         for (v, part) in settled.part_of.iter_mut().enumerate() {
-            if collapsed[self.component[v] as usize] {
+            if collapsed[component[v] as usize] {
                 *part = NO_PART;
             }
         }
-        settled.targets =
-            part_volumes(mesh, mesh.positions(), &settled.part_of, self.targets.len());
+        settled.targets = part_volumes(
+            mesh,
+            mesh.positions(),
+            &settled.part_of,
+            self.targets.len(),
+            &self.apexes,
+        );
         Some((settled, change))
     }
 
@@ -204,20 +214,38 @@ impl VolumeParts {
 
     /// Each part's signed volume at `positions`.
     fn volumes(&self, mesh: &Mesh, positions: &[DVec3]) -> Vec<f64> {
-        part_volumes(mesh, positions, &self.part_of, self.targets.len())
+        part_volumes(
+            mesh,
+            positions,
+            &self.part_of,
+            self.targets.len(),
+            &self.apexes,
+        )
+    }
+
+    /// The apexes every volume of these parts is taken from, for a caller
+    /// that measures the whole mesh's volume the same way.
+    pub fn apexes(&self) -> &VolumeApexes {
+        &self.apexes
     }
 }
 
 /// The signed volume at `positions` of each of `count` parts, vertex `v` in
 /// part `part_of[v]` (a face belongs to its first corner's part; faces of
-/// [`NO_PART`] count nowhere). The
-/// faces' volumes are computed in parallel and summed in face order: the
-/// same bits whatever the thread count.
-fn part_volumes(mesh: &Mesh, positions: &[DVec3], part_of: &[u32], count: usize) -> Vec<f64> {
+/// [`NO_PART`] count nowhere), each face's cone taken from its `apexes`.
+/// The faces' volumes are computed in parallel and summed in face order:
+/// the same bits whatever the thread count.
+fn part_volumes(
+    mesh: &Mesh,
+    positions: &[DVec3],
+    part_of: &[u32],
+    count: usize,
+    apexes: &VolumeApexes,
+) -> Vec<f64> {
     let per_face: Vec<f64> = (0..mesh.num_faces())
         .into_par_iter()
         .with_min_len(4096)
-        .map(|f| cone_volume6(mesh.face(f), positions) / 6.0)
+        .map(|f| apexes.cone_volume6(mesh.face(f), positions) / 6.0)
         .collect();
     sum_by_part(mesh, part_of, &per_face, count)
 }
@@ -419,8 +447,43 @@ fn restoration_targets(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::mesh::{Topology, signed_volume};
+    use crate::mesh::{Topology, signed_volume, test_walled_sphere};
     use crate::shapes::{self, voxel_sphere};
+
+    #[test]
+    fn a_walled_surface_is_restored_alike_wherever_the_origin_lies() {
+        // A voxel sphere with a wall across it, whose rim edges three faces
+        // share (as at a neuron's junctions): its faces enclose no volume
+        // independent of the cones' apex, and the restoration of the same
+        // shrink must not depend on where the origin lies.
+        let run = |shift: DVec3| {
+            let mesh = test_walled_sphere(6.0, shift);
+            let topo = Topology::build(&mesh);
+            let parts = VolumeParts::new(&mesh, &topo, None);
+            let c = mesh.positions().iter().sum::<DVec3>() / mesh.num_vertices() as f64;
+            let mut p: Vec<DVec3> = mesh
+                .positions()
+                .iter()
+                .map(|&p| c + 0.99 * (p - c))
+                .collect();
+            let movable = vec![true; p.len()];
+            let done = restore_volume(&mesh, &topo, &parts, &mut p, &movable, 1.0, |_| true);
+            (
+                done.mean_offset,
+                p.iter().map(|&q| q - shift).collect::<Vec<_>>(),
+            )
+        };
+        let (here, at_home) = run(DVec3::ZERO);
+        let (there, far) = run(DVec3::new(4000.0, -2500.0, 1200.0));
+        assert!(here > 0.0, "{here}");
+        assert!((here - there).abs() <= 1e-9 * here, "{here} vs {there}");
+        let most = at_home
+            .iter()
+            .zip(&far)
+            .map(|(p, q)| (*p - *q).length())
+            .fold(0.0, f64::max);
+        assert!(most < 1e-6, "{most}");
+    }
 
     #[test]
     fn restores_the_volume_unless_the_result_is_rejected() {
