@@ -883,8 +883,21 @@ pub(crate) fn link_centroid(
     Some((sx / k, sy / k))
 }
 
+/// A split triangle whose normal makes a cosine below this with its input
+/// normal is turned: standing almost across its input orientation, as a
+/// sliver of the input that the smoothing rolled over its long side may
+/// stand. Every move along the surface that opens such a sliver turns it
+/// past the perpendicular, which the fixes refuse as an inversion, so
+/// [`uninvert_steps`] also tries turning it back toward its input
+/// orientation, by steps off the surface. The value leaves alone the
+/// triangles a curved surface tilts by up to about 70 degrees. Only a
+/// triangle sharp in the input and now counts: a voxel mesh's risers
+/// turn by 45 to 90 degrees as the smoothing intends, and no step may
+/// raise them back.
+const TURNED_COS: f64 = 0.3;
+
 /// Steps that turn each split triangle at `v` that is inverted relative to
-/// `input` the right way round: a triangle `(v, a, b)`'s normal dotted with
+/// `input` (or turned, below) the right way round: a triangle `(v, a, b)`'s normal dotted with
 /// its input normal `m` is affine in `v`, `(a x b).m + v.((a - b) x m)`, so
 /// a step along `g = (a - b) x m` that makes it positive is exact. Written
 /// to `tangent` as tangent-plane steps (local coordinates of `surface`,
@@ -893,7 +906,11 @@ pub(crate) fn link_centroid(
 /// move is shorter than `max_direct` (a face standing almost perpendicular
 /// to its input orientation can only be turned by such a move). Two steps
 /// each per triangle (1.5 and 3 times the step that reaches zero), at most
-/// four triangles.
+/// four triangles. A triangle that is not inverted but turned
+/// ([`TURNED_COS`]), and whose smallest angle has a cosine above
+/// `cos_sharp` both in the input and now, gets the steps that take `n.m`
+/// to `TURNED_COS |n| |m|` and to twice that, `n` its normal before the
+/// step.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn uninvert_steps(
     mesh: &Mesh,
@@ -903,6 +920,7 @@ pub(crate) fn uninvert_steps(
     input: &[DVec3],
     surface: &LocalSurface,
     max_direct: f64,
+    cos_sharp: f64,
     tangent: &mut Vec<(f64, f64)>,
     direct: &mut Vec<DVec3>,
 ) {
@@ -918,22 +936,34 @@ pub(crate) fn uninvert_steps(
             let m = (input[a] - input[v]).cross(input[b] - input[v]);
             let n = (positions[a] - positions[v]).cross(positions[b] - positions[v]);
             let s = n.dot(m);
-            if s >= 0.0 {
+            let nm = n.length() * m.length();
+            let turned = || {
+                s < TURNED_COS * nm
+                    && min_angle_cos(input[v], input[a], input[b]) > cos_sharp
+                    && min_angle_cos(positions[v], positions[a], positions[b]) > cos_sharp
+            };
+            if s >= 0.0 && !turned() {
                 continue;
             }
             let g = (positions[a] - positions[b]).cross(m);
             let (gx, gy) = (g.dot(surface.frame.u), g.dot(surface.frame.v));
             let gg = gx * gx + gy * gy;
+            // An inverted triangle: 1.5 and 3 times the step to zero. A
+            // turned one: the steps to TURNED_COS and twice that.
+            let goals = if s < 0.0 {
+                [1.5 * -s, 3.0 * -s]
+            } else {
+                [TURNED_COS * nm - s, 2.0 * TURNED_COS * nm - s]
+            };
             if gg > 0.0 {
-                let t = -s / gg;
-                tangent.extend([1.5, 3.0].map(|k| (k * t * gx, k * t * gy)));
+                tangent.extend(goals.map(|d| (d / gg * gx, d / gg * gy)));
             }
             let g3 = g.length_squared();
             if g3 > 0.0 {
-                let step = (-s / g3) * g;
-                for k in [1.5, 3.0] {
-                    if k * step.length() <= max_direct {
-                        direct.push(positions[v] + k * step);
+                for d in goals {
+                    let step = (d / g3) * g;
+                    if step.length() <= max_direct {
+                        direct.push(positions[v] + step);
                     }
                 }
             }
@@ -964,6 +994,53 @@ pub(crate) fn link_radius(surface: &LocalSurface, link: &[u32], positions: &[DVe
 mod tests {
     use super::*;
     use crate::quality::fixtures::{at, grid};
+
+    #[test]
+    fn a_turned_triangle_gets_steps_that_turn_it_back() {
+        // Vertex (1,1) of a flat grid raised four edges: its split
+        // triangles stand almost across their input orientation, none
+        // inverted. Each direct step reaches its goal for `n.m` exactly.
+        let m = grid(3);
+        let t = Topology::build(&m);
+        let v = at(3, 1, 1);
+        let input = m.positions().to_vec();
+        let mut p = input.clone();
+        p[v].z = 4.0;
+        let mut ring = Vec::new();
+        let surface = LocalSurface::at(&m, &t, v, &p, &mut ring, -1.0).unwrap();
+        let (mut tangent, mut direct) = (Vec::new(), Vec::new());
+        uninvert_steps(
+            &m,
+            &t,
+            v,
+            &p,
+            &input,
+            &surface,
+            f64::INFINITY,
+            0.0, // every triangle with angles under 90 degrees is sharp
+            &mut tangent,
+            &mut direct,
+        );
+        assert!(
+            !direct.is_empty() && direct.len() == tangent.len(),
+            "{direct:?}"
+        );
+        // The first triangle at v in face order, and its steps.
+        let face = m.face(t.vertex_faces(v)[0] as usize);
+        let tri = [face[0], face[1], face[2]];
+        let at_v = tri.iter().position(|&w| w as usize == v).unwrap();
+        let (a, b) = (tri[(at_v + 1) % 3] as usize, tri[(at_v + 2) % 3] as usize);
+        let normal = |q: DVec3, pos: &[DVec3]| (pos[a] - q).cross(pos[b] - q);
+        let mi = normal(input[v], &input);
+        let n = normal(p[v], &p);
+        let cos = n.dot(mi) / (n.length() * mi.length());
+        assert!(cos > 0.0 && cos < TURNED_COS, "{cos}");
+        for (k, goal) in [1.0, 2.0].into_iter().enumerate() {
+            let turned = normal(direct[k], &p).dot(mi);
+            let want = goal * TURNED_COS * n.length() * mi.length();
+            assert!((turned - want).abs() < 1e-9 * want, "{turned} vs {want}");
+        }
+    }
 
     #[test]
     fn min_angle_cos_is_the_smallest_angle() {

@@ -23,7 +23,13 @@
 //! Last come the exact steps that turn an inverted triangle back by
 //! moving off the surface, allowed up to a twentieth of the mean distance
 //! to the link (a face standing almost perpendicular to its input
-//! orientation turns only that way).
+//! orientation turns only that way). A triangle sharp in the input and
+//! now that stands almost across its input orientation without being
+//! inverted (an input sliver the smoothing rolled over its long side) gets
+//! such steps too: every move
+//! along the surface that opens it would turn it past the perpendicular,
+//! an inversion, and a vertex that could only try those stayed, leaving
+//! the sliver at a degree or two.
 //!
 //! A candidate counts only when it improves on the current position: no
 //! face becomes inverted relative to the input, no quad becomes twisted,
@@ -271,6 +277,7 @@ impl Relocator {
             input,
             &surface,
             MAX_OFF_SURFACE * radius,
+            cos_goal,
             &mut targets,
             &mut off_surface,
         );
