@@ -897,9 +897,10 @@ pub(crate) fn link_centroid(
 const TURNED_COS: f64 = 0.3;
 
 /// Steps that turn each split triangle at `v` that is inverted relative to
-/// `input` (or turned, below) the right way round: a triangle `(v, a, b)`'s normal dotted with
-/// its input normal `m` is affine in `v`, `(a x b).m + v.((a - b) x m)`, so
-/// a step along `g = (a - b) x m` that makes it positive is exact. Written
+/// `input` (or turned, below) the right way round: a triangle `(v, a, b)`'s
+/// normal dotted with its input normal `m` is affine in `v`,
+/// `(a x b).m + v.((a - b) x m)`, so a step along `g = (a - b) x m` that
+/// makes it positive is exact. Written
 /// to `tangent` as tangent-plane steps (local coordinates of `surface`,
 /// along the tangent part of `g`, to be lifted onto the surface) and to
 /// `direct` as positions moved along `g` itself, off the surface, when that

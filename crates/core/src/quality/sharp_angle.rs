@@ -26,10 +26,9 @@
 //! orientation turns only that way). A triangle sharp in the input and
 //! now that stands almost across its input orientation without being
 //! inverted (an input sliver the smoothing rolled over its long side) gets
-//! such steps too: every move
-//! along the surface that opens it would turn it past the perpendicular,
-//! an inversion, and a vertex that could only try those stayed, leaving
-//! the sliver at a degree or two.
+//! such steps too: every move along the surface that opens it would turn
+//! it past the perpendicular, an inversion, and a vertex that could only
+//! try those stayed, leaving the sliver at a degree or two.
 //!
 //! A candidate counts only when it improves on the current position: no
 //! face becomes inverted relative to the input, no quad becomes twisted,
