@@ -9,7 +9,7 @@ use crate::fit::normals::vertex_normals_f32_by_faces;
 use crate::fit::quadric_fit::FitModel;
 use crate::mesh::lattice::{is_marching_cubes_lattice, is_voxel_lattice};
 use crate::mesh::{
-    Mesh, Orientation, PairedFaces, Topology, VertexKind, mean_edge_length, orientation,
+    Mesh, Orientation, PairedFaces, Topology, UnitScale, VertexKind, mean_edge_length, orientation,
     paired_voxel_faces, regions,
 };
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
@@ -131,6 +131,23 @@ pub struct SmoothOutput {
     pub report: QualityReport,
     /// Per-vertex results.
     pub per_vertex: PerVertex,
+}
+
+impl SmoothOutput {
+    /// The output of the same run on the mesh scaled by `s`: positions and
+    /// displacements times `s`, mean curvatures divided by it, Gaussian
+    /// curvatures by its square, and the report likewise
+    /// ([`QualityReport::rescale`]). Exact when `s` is a power of two.
+    fn rescale(&mut self, s: f64) {
+        for p in &mut self.positions {
+            *p *= s;
+        }
+        let v = &mut self.per_vertex;
+        v.mean_curvature.iter_mut().for_each(|h| *h /= s);
+        v.gaussian_curvature.iter_mut().for_each(|k| *k /= s * s);
+        v.displacement.iter_mut().for_each(|d| *d *= s);
+        self.report.rescale(s);
+    }
 }
 
 /// Components of at most this many vertices stay where they are: the
@@ -793,7 +810,21 @@ pub fn run_bodies(
     progress: &dyn Progress,
     cancel: &AtomicBool,
 ) -> Result<SmoothOutput, SmoothError> {
-    run_inner(mesh, bodies, params, progress, cancel, Call::Whole)
+    // A mesh in units far from its edges' is smoothed at unit edges and
+    // scaled back ([`UnitScale`]): the same bits as in any ordinary unit.
+    let Some(unit) = UnitScale::of(mesh) else {
+        return run_inner(mesh, bodies, params, progress, cancel, Call::Whole);
+    };
+    let mut out = run_inner(
+        &unit.apply(mesh),
+        bodies,
+        params,
+        progress,
+        cancel,
+        Call::Whole,
+    )?;
+    out.rescale(unit.inverse());
+    Ok(out)
 }
 
 /// What [`run_inner`] is called on.
@@ -1350,6 +1381,18 @@ fn final_warnings(params: &Params, report: &mut QualityReport, volume_warned: bo
 /// fits would cost the square of its largest valence or face), and the
 /// report's warnings say why.
 pub fn measure(mesh: &Mesh, params: &Params) -> QualityReport {
+    // Measured at unit edges when the units are extreme, as [`run_bodies`]
+    // smooths.
+    if let Some(unit) = UnitScale::of(mesh) {
+        let mut report = measure_in_units(&unit.apply(mesh), params);
+        report.rescale(unit.inverse());
+        return report;
+    }
+    measure_in_units(mesh, params)
+}
+
+/// [`measure`] in the mesh's own units.
+fn measure_in_units(mesh: &Mesh, params: &Params) -> QualityReport {
     let topo = Topology::build(mesh);
     let shape = check_shape(mesh, &topo);
     let (oriented, orientation) = oriented(mesh, &topo);
@@ -1703,5 +1746,95 @@ mod tests {
             0.0
         );
         assert_eq!(p, before);
+    }
+
+    /// Asserts that every number of the report `b` is the same entry of
+    /// `a` times `2^(k e)` for a whole `k` in `-3..=3` (a count, a length,
+    /// an area, a volume or a curvature), bit for bit, and that every other
+    /// entry is equal; wall times are left out.
+    fn assert_rescaled(a: &serde_json::Value, b: &serde_json::Value, e: i32, at: &str) {
+        use serde_json::Value;
+        match (a, b) {
+            (Value::Object(a), Value::Object(b)) => {
+                assert_eq!(a.len(), b.len(), "{at}");
+                for (key, x) in a {
+                    if key == "timings" || key == "total_ms" {
+                        continue;
+                    }
+                    let y = b.get(key).unwrap_or(&Value::Null);
+                    assert_rescaled(x, y, e, &format!("{at}.{key}"));
+                }
+            }
+            (Value::Array(a), Value::Array(b)) => {
+                assert_eq!(a.len(), b.len(), "{at}");
+                for (i, (x, y)) in a.iter().zip(b).enumerate() {
+                    assert_rescaled(x, y, e, &format!("{at}[{i}]"));
+                }
+            }
+            (Value::Number(x), Value::Number(y)) => {
+                let (x, y) = (x.as_f64().unwrap(), y.as_f64().unwrap());
+                let step = 2f64.powi(e);
+                let scaled = |k: i32| {
+                    let mut v = x;
+                    for _ in 0..k.abs() {
+                        v = if k > 0 { v * step } else { v / step };
+                    }
+                    v
+                };
+                assert!(
+                    (-3..=3).any(|k| scaled(k) == y),
+                    "{at}: {y:e} is not {x:e} times a power of 2^{e}"
+                );
+            }
+            _ => assert_eq!(a, b, "{at}"),
+        }
+    }
+
+    #[test]
+    fn a_mesh_in_extreme_units_smooths_as_in_ordinary_ones() {
+        // At 2^3 the meshes are smoothed in their own units; at 2^303 and
+        // 2^-297 (volumes stay finite) at unit edges, 2^3 from the reference, so a
+        // length the rescaling left out would differ from the reference by
+        // a power of 2^3, not of 2^300.
+        let scaled = |mesh: &Mesh, e: i32| {
+            let mut m = mesh.clone();
+            for p in m.positions_mut() {
+                *p *= 2f64.powi(e);
+            }
+            m
+        };
+        let (_, sphere) = shapes::voxel_sphere(5.0);
+        let walled = crate::mesh::test_walled_sphere(4.0, DVec3::ZERO);
+        for (name, mesh) in [("sphere", sphere), ("walled", walled)] {
+            let reference = scaled(&mesh, 3);
+            assert_eq!(UnitScale::of(&reference), None);
+            let a = run_defaults(&reference);
+            let a_measured = measure(&reference, &Params::default());
+            for e in [300, -300] {
+                let extreme = scaled(&mesh, 3 + e);
+                assert!(UnitScale::of(&extreme).is_some());
+                let b = run_defaults(&extreme);
+                let s = 2f64.powi(e);
+                for (p, q) in a.positions.iter().zip(&b.positions) {
+                    assert_eq!(*p * s, *q, "{name} at 2^{e}");
+                }
+                let (va, vb) = (&a.per_vertex, &b.per_vertex);
+                assert_eq!(va.label, vb.label);
+                for (x, y) in va.mean_curvature.iter().zip(&vb.mean_curvature) {
+                    assert_eq!(x / s, *y, "{name} at 2^{e}");
+                }
+                for (x, y) in va.gaussian_curvature.iter().zip(&vb.gaussian_curvature) {
+                    assert_eq!(x / s / s, *y, "{name} at 2^{e}");
+                }
+                for (x, y) in va.displacement.iter().zip(&vb.displacement) {
+                    assert_eq!(x * s, *y, "{name} at 2^{e}");
+                }
+                let json = |r: &QualityReport| serde_json::to_value(r).unwrap();
+                let at = format!("{name} at 2^{e}");
+                assert_rescaled(&json(&a.report), &json(&b.report), e, &at);
+                let b_measured = measure(&extreme, &Params::default());
+                assert_rescaled(&json(&a_measured), &json(&b_measured), e, &at);
+            }
+        }
     }
 }

@@ -10,6 +10,7 @@ mod orientation;
 mod paired;
 mod regions;
 mod ring;
+mod scale;
 mod topology;
 mod volume;
 #[cfg(test)]
@@ -22,6 +23,7 @@ pub use orientation::{Orientation, orientation};
 pub use paired::{PairedFaces, paired_voxel_faces};
 pub use regions::{OUTSIDE, Regions, regions};
 pub use ring::RingWalker;
+pub use scale::{UNIT_BAND, UnitScale};
 pub(crate) use topology::has_repeated_corner;
 pub use topology::{Topology, VertexKind};
 pub use volume::VolumeApexes;

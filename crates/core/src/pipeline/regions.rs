@@ -238,12 +238,23 @@ pub(super) fn run(
     report.mesh.region_walls = regions.walls as u64;
     report.walls_joined = Some(joined);
     report.joined_fixes = Some(fixes);
+    // In edge lengths, which mean the same in every unit the mesh may have
+    // been smoothed in (`UnitScale`); `walls_joined` has them in its own.
+    let edge = report
+        .stages
+        .input
+        .as_ref()
+        .map_or(0.0, |s| s.mean_edge_length);
+    let in_edges = |d: f64| if edge > 0.0 { d / edge } else { 0.0 };
     report.warnings.push(format!(
         "the mesh is a complex of {} regions sharing {} wall faces (a multi-label surface, \
          each wall written once): each region was smoothed as its own closed surface, and each \
-         wall vertex put at the mean of its regions' results, which lay {:.3} from it on \
-         average and {:.3} at most (in the mesh's units)",
-        regions.count, regions.walls, joined.mean, joined.max
+         wall vertex put at the mean of its regions' results, which lay {:.3} mean edge \
+         lengths from it on average and {:.3} at most",
+        regions.count,
+        regions.walls,
+        in_edges(joined.mean),
+        in_edges(joined.max)
     ));
     super::final_warnings(params, &mut report, true);
     timings.absorb(&inner.timings);

@@ -92,6 +92,42 @@ impl QualityReport {
             joined_fixes: None,
         }
     }
+
+    /// The report of the same run on the mesh scaled by `s`: every length
+    /// times `s`, curvatures divided by it, volumes times its cube; counts,
+    /// angles and relative measures unchanged. Exact when `s` is a power of
+    /// two ([`crate::mesh::UnitScale`]).
+    pub fn rescale(&mut self, s: f64) {
+        let stages = &mut self.stages;
+        for stage in [
+            &mut stages.input,
+            &mut stages.initial,
+            &mut stages.adaptive,
+            &mut stages.final_stage,
+        ]
+        .into_iter()
+        .flatten()
+        {
+            stage.rescale(s);
+        }
+        if let Some(w) = self.wang_yu.as_mut() {
+            w.initial_fits.max_step *= s;
+            w.adaptive_fits.max_step *= s;
+            w.volume_offset *= s;
+        }
+        for fixes in [&mut self.quality_fixes, &mut self.joined_fixes]
+            .into_iter()
+            .flatten()
+        {
+            fixes.short_edges.threshold *= s;
+        }
+        for d in [&mut self.walls_parted, &mut self.walls_joined]
+            .into_iter()
+            .flatten()
+        {
+            d.rescale(s);
+        }
+    }
 }
 
 impl Default for QualityReport {
@@ -150,6 +186,22 @@ pub struct StageMeasures {
     pub volume: Option<VolumeMeasure>,
     /// How far vertices moved from the input.
     pub displacement: Displacement,
+}
+
+impl StageMeasures {
+    /// These measures on the positions scaled by `s`
+    /// ([`QualityReport::rescale`]).
+    fn rescale(&mut self, s: f64) {
+        self.mean_edge_length *= s;
+        self.short_edge_threshold *= s;
+        if let Some(c) = self.curvature_variation.as_mut() {
+            c.mean /= s;
+        }
+        if let Some(v) = self.volume.as_mut() {
+            v.volume *= s * s * s;
+        }
+        self.displacement.rescale(s);
+    }
 }
 
 /// Mean curvature variation: per vertex `max_{j in N_1(i)} |H_i - H_j|`,
@@ -245,6 +297,15 @@ pub struct Displacement {
     pub rms: f64,
     /// Largest distance.
     pub max: f64,
+}
+
+impl Displacement {
+    /// These distances scaled by `s`.
+    fn rescale(&mut self, s: f64) {
+        self.mean *= s;
+        self.rms *= s;
+        self.max *= s;
+    }
 }
 
 /// Size and topology of a mesh.
