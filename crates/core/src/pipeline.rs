@@ -13,7 +13,9 @@ use crate::mesh::{
     paired_voxel_faces, regions,
 };
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
-use crate::quality::{SLIVER_FRACTION, has_sliver_angle, improve, is_defective};
+use crate::quality::{
+    SLIVER_FRACTION, has_sliver_angle, improve, is_defective, smallest_angle_cos,
+};
 use crate::report::{CurvatureVariation, QualityReport, StageMeasures};
 use crate::report::{
     InputGrid, LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
@@ -1264,17 +1266,18 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
 /// around the first ones left out.
 const REOFFSET_ROUNDS: usize = 4;
 
-/// Restores each part's input volume after the quality fixes by an offset of at
-/// most [`MAX_VOLUME_REOFFSET`] of the mean edge length, over the movable
-/// vertices whose move folds or twists no face that was sound, closes no
-/// face's angle below `sliver_deg` that was above it (what the sliver fix
-/// opened stays open) and keeps them within the quality bound: a round
-/// that would fold or close a face or leave the bound leaves that face's
-/// corners (or that vertex) where they are and solves again, up to
-/// [`REOFFSET_ROUNDS`] rounds. The mean offset applied, 0 when no round
-/// succeeded (the positions are then unchanged). A thin neurite's few
-/// near-degenerate faces would otherwise keep the whole surface from its
-/// volume.
+/// Restores each part's input volume after the quality fixes by an offset
+/// of at most [`MAX_VOLUME_REOFFSET`] of the mean edge length, over the
+/// movable vertices whose move folds or twists no face that was sound,
+/// closes no face's angle below `sliver_deg`, nor further a face already
+/// sharper (what the sliver fix opened stays open, and a needle of the
+/// input that the fixes held at half its angle closes no more), and keeps
+/// them within the quality bound: a round that would fold or close a face
+/// or leave the bound leaves that face's corners (or that vertex) where
+/// they are and solves again, up to [`REOFFSET_ROUNDS`] rounds. The mean
+/// offset applied, 0 when no round succeeded (the positions are then
+/// unchanged). A thin neurite's few near-degenerate faces would otherwise
+/// keep the whole surface from its volume.
 fn restore_where_safe(
     mesh: &Mesh,
     topo: &Topology,
@@ -1291,10 +1294,12 @@ fn restore_where_safe(
         .with_min_len(4096)
         .map(|f| !is_defective(mesh, f, positions, input))
         .collect();
-    let open: Vec<bool> = (0..mesh.num_faces())
+    // Per face, the cosine of the smallest angle the offset may leave it:
+    // the sliver floor, or the face's own angle where it is sharper.
+    let floor: Vec<f64> = (0..mesh.num_faces())
         .into_par_iter()
         .with_min_len(4096)
-        .map(|f| !has_sliver_angle(mesh, f, positions, cos_floor))
+        .map(|f| cos_floor.max(smallest_angle_cos(mesh, f, positions)))
         .collect();
     let max_offset = MAX_VOLUME_REOFFSET * mean_edge_length(mesh, positions);
     let mut movable = movable.to_vec();
@@ -1313,7 +1318,7 @@ fn restore_where_safe(
             .with_min_len(4096)
             .filter(|&f| {
                 (sound[f] && is_defective(mesh, f, &trial, input))
-                    || (open[f] && has_sliver_angle(mesh, f, &trial, cos_floor))
+                    || has_sliver_angle(mesh, f, &trial, floor[f])
             })
             .collect();
         let outside: Vec<usize> = match quality_bound {
@@ -1706,6 +1711,32 @@ mod tests {
         assert!(closed(&unguarded) > 0, "the fixture closes faces");
         let mut p = shrunk.clone();
         restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, floor);
+        assert_eq!(closed(&p), 0);
+    }
+
+    #[test]
+    fn the_last_restoration_closes_no_face_sharper_than_the_floor_further() {
+        // Under a floor of 50 degrees every face of the cube is sharper
+        // already (45 degree corners), as a marching-cubes needle of the
+        // input is under the sliver floor: none may close further.
+        let (mesh, topo, movable, parts, shrunk) = shrunk_voxel_cube();
+        let cos = |p: &[DVec3]| -> Vec<f64> {
+            (0..mesh.num_faces())
+                .map(|f| smallest_angle_cos(&mesh, f, p))
+                .collect()
+        };
+        let closed = |p: &[DVec3]| {
+            cos(p)
+                .iter()
+                .zip(cos(&shrunk))
+                .filter(|(after, before)| **after > *before)
+                .count()
+        };
+        let mut unguarded = shrunk.clone();
+        restore_where_safe(&mesh, &topo, &parts, &mut unguarded, &movable, None, 0.0);
+        assert!(closed(&unguarded) > 0, "the fixture closes faces");
+        let mut p = shrunk.clone();
+        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, 50.0);
         assert_eq!(closed(&p), 0);
     }
 

@@ -106,15 +106,17 @@ pub const SLIVER_FRACTION: f64 = 0.5;
 /// `input` the input positions (one per vertex, the reference for inverted
 /// faces): twisted quads, then short edges, then sharp angles (moving the
 /// interior vertices, then, for the faces they could not open, the
-/// non-manifold vertices as well: [`Movers`]), then the
-/// folds the sharp-angle fix's single-vertex moves could not open (and, if
-/// that moved a vertex, sharp angles again, its counts added to the
-/// first run's), then the slivers neither could open
-/// ([`SLIVER_FRACTION`]), each at most `params.max_sweeps` sweeps. Surface fits leave out
-/// neighbours facing away by a cosine below `min_normal_cos`
-/// ([`crate::Params::min_normal_cos`]). No move takes a vertex out of
-/// `bound` around its input position. Does nothing when `params.enabled`
-/// is false.
+/// non-manifold vertices as well: [`Movers`]), then the folds the
+/// sharp-angle fix's single-vertex moves could not open, then the slivers
+/// neither could open ([`SLIVER_FRACTION`]), each at most
+/// `params.max_sweeps` sweeps. The fold and the sliver fixes move clusters
+/// back toward the input only until their faces are sound, which can leave
+/// angles just above the sliver floor: when either moved a vertex, sharp
+/// angles run again after it, their counts added to the first run's.
+/// Surface fits leave out neighbours facing away by a cosine below
+/// `min_normal_cos` ([`crate::Params::min_normal_cos`]). No move takes a
+/// vertex out of `bound` around its input position. Does nothing when
+/// `params.enabled` is false.
 pub fn improve(
     mesh: &Mesh,
     topo: &Topology,
@@ -182,6 +184,13 @@ pub fn improve(
         SLIVER_FRACTION * params.sharp_angle_deg,
         sweeps,
     );
+    if slivers.vertices_moved > 0 {
+        // The sliver fix moved clusters back toward the input only until
+        // their angles reached the floor: the angle-based moves may open
+        // them further (a face the passes squeezed that was sound in the
+        // input).
+        sharp_angles.add(&sharp_then_non_manifold(positions));
+    }
     QualityFixStats {
         twisted,
         short_edges,
@@ -195,6 +204,17 @@ pub fn improve(
 /// `cos_floor` at `positions` (a face with a repeated corner never has).
 pub fn has_sliver_angle(mesh: &Mesh, f: usize, positions: &[DVec3], cos_floor: f64) -> bool {
     local::has_angle_below(mesh.face(f), positions, cos_floor)
+}
+
+/// The cosine of face `f`'s smallest split-triangle angle at `positions`
+/// (-1 for a face with a repeated corner, which has no angle to close).
+pub fn smallest_angle_cos(mesh: &Mesh, f: usize, positions: &[DVec3]) -> f64 {
+    let face = mesh.face(f);
+    if local::has_repeated_corner(face) {
+        -1.0
+    } else {
+        local::max_split_cos(face, positions)
+    }
 }
 
 /// Whether face `f` is inverted relative to `input` or a twisted quad at
