@@ -13,9 +13,7 @@ use crate::mesh::{
     paired_voxel_faces, regions,
 };
 use crate::params::{AdaptiveFit, BoundaryRule, Method, ParamError, Params};
-use crate::quality::{
-    SLIVER_FRACTION, has_sliver_angle, improve, is_defective, smallest_angle_cos,
-};
+use crate::quality::{SLIVER_FRACTION, closing_floor_cos, has_sliver_angle, improve, is_defective};
 use crate::report::{CurvatureVariation, QualityReport, StageMeasures};
 use crate::report::{
     InputGrid, LabelCounts, Reproducibility, StageTiming, WangYuSummary, ring_size_histogram,
@@ -1269,10 +1267,11 @@ const REOFFSET_ROUNDS: usize = 4;
 /// Restores each part's input volume after the quality fixes by an offset
 /// of at most [`MAX_VOLUME_REOFFSET`] of the mean edge length, over the
 /// movable vertices whose move folds or twists no face that was sound,
-/// closes no face's angle below `sliver_deg`, nor further a face already
-/// sharper (what the sliver fix opened stays open, and a needle of the
-/// input that the fixes held at half its angle closes no more), and keeps
-/// them within the quality bound: a round that would fold or close a face
+/// closes no face's angle below `sliver_deg`, nor a face already sharper
+/// below where the sharp-angle fix would hold it ([`closing_floor_cos`]:
+/// what the sliver fix opened stays open, and a needle of the input that
+/// the fixes held at half its angle closes no more), and keeps them
+/// within the quality bound: a round that would fold or close a face
 /// or leave the bound leaves that face's corners (or that vertex) where
 /// they are and solves again, up to [`REOFFSET_ROUNDS`] rounds. The mean
 /// offset applied, 0 when no round succeeded (the positions are then
@@ -1294,12 +1293,11 @@ fn restore_where_safe(
         .with_min_len(4096)
         .map(|f| !is_defective(mesh, f, positions, input))
         .collect();
-    // Per face, the cosine of the smallest angle the offset may leave it:
-    // the sliver floor, or the face's own angle where it is sharper.
+    // Per face, the cosine of the smallest angle the offset may leave it.
     let floor: Vec<f64> = (0..mesh.num_faces())
         .into_par_iter()
         .with_min_len(4096)
-        .map(|f| cos_floor.max(smallest_angle_cos(mesh, f, positions)))
+        .map(|f| closing_floor_cos(mesh, f, positions, input, cos_floor))
         .collect();
     let max_offset = MAX_VOLUME_REOFFSET * mean_edge_length(mesh, positions);
     let mut movable = movable.to_vec();
@@ -1715,28 +1713,24 @@ mod tests {
     }
 
     #[test]
-    fn the_last_restoration_closes_no_face_sharper_than_the_floor_further() {
-        // Under a floor of 50 degrees every face of the cube is sharper
-        // already (45 degree corners), as a marching-cubes needle of the
-        // input is under the sliver floor: none may close further.
+    fn the_last_restoration_closes_a_sliver_of_the_input_no_further_than_the_fixes() {
+        // Under a floor of 46 degrees every face of the cube is a sliver of
+        // the input (45 degree corners), as a marching-cubes needle is
+        // under the sliver floor: the offset may close them only as far as
+        // the sharp-angle fix would, to twice their angle less the floor
+        // (44 degrees).
         let (mesh, topo, movable, parts, shrunk) = shrunk_voxel_cube();
-        let cos = |p: &[DVec3]| -> Vec<f64> {
-            (0..mesh.num_faces())
-                .map(|f| smallest_angle_cos(&mesh, f, p))
-                .collect()
-        };
+        let held = 44.0f64.to_radians().cos() + 1e-12;
         let closed = |p: &[DVec3]| {
-            cos(p)
-                .iter()
-                .zip(cos(&shrunk))
-                .filter(|(after, before)| **after > *before)
+            (0..mesh.num_faces())
+                .filter(|&f| has_sliver_angle(&mesh, f, p, held))
                 .count()
         };
         let mut unguarded = shrunk.clone();
         restore_where_safe(&mesh, &topo, &parts, &mut unguarded, &movable, None, 0.0);
         assert!(closed(&unguarded) > 0, "the fixture closes faces");
         let mut p = shrunk.clone();
-        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, 50.0);
+        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, 46.0);
         assert_eq!(closed(&p), 0);
     }
 

@@ -214,6 +214,33 @@ fn input_sliver_floor(input_cos: f64, cos_guard: f64) -> f64 {
     }
 }
 
+/// The cosine of the smallest angle a move that only trades the angles
+/// for something else (the volume restoration's last offset) may leave
+/// `face`, now at `positions`, with the sliver floor of cosine `cos_guard`:
+/// the floor for a face above it; for a face already sharper, the floor
+/// the sharp-angle fix holds it to when the input had it sharper too
+/// ([`input_sliver_floor`]), and its own angle where it is sharper still
+/// or the input had it sound. A face with a repeated corner has no angle
+/// (-1).
+pub(crate) fn closing_floor_cos(
+    face: &[u32],
+    positions: &[DVec3],
+    input: &[DVec3],
+    cos_guard: f64,
+) -> f64 {
+    if has_repeated_corner(face) {
+        return -1.0;
+    }
+    let now = max_split_cos(face, positions);
+    if now <= cos_guard {
+        return cos_guard;
+    }
+    match input_sliver_floor(max_split_cos(face, input), cos_guard) {
+        1.0 => now,
+        held => now.max(held),
+    }
+}
+
 /// A move may not open a quad's split corner beyond this angle (cosine of
 /// 160°), unless the corner was already wider.
 pub(crate) const WIDEST_CORNER_COS: f64 = -0.939_692_620_785_908_4;

@@ -206,15 +206,21 @@ pub fn has_sliver_angle(mesh: &Mesh, f: usize, positions: &[DVec3], cos_floor: f
     local::has_angle_below(mesh.face(f), positions, cos_floor)
 }
 
-/// The cosine of face `f`'s smallest split-triangle angle at `positions`
-/// (-1 for a face with a repeated corner, which has no angle to close).
-pub fn smallest_angle_cos(mesh: &Mesh, f: usize, positions: &[DVec3]) -> f64 {
-    let face = mesh.face(f);
-    if local::has_repeated_corner(face) {
-        -1.0
-    } else {
-        local::max_split_cos(face, positions)
-    }
+/// The cosine of the smallest angle a move made for something other than
+/// the angles (the volume restoration's last offset) may leave face `f`,
+/// now at `positions`, with `input` the input positions and `cos_floor`
+/// the sliver floor's cosine: the floor for a face above it; a face
+/// already sharper closes no further, but for a sliver of the input, which
+/// may close as far as the sharp-angle fix lets it (half its input angle,
+/// [`SLIVER_FRACTION`]). -1 (no floor) for a face with a repeated corner.
+pub fn closing_floor_cos(
+    mesh: &Mesh,
+    f: usize,
+    positions: &[DVec3],
+    input: &[DVec3],
+    cos_floor: f64,
+) -> f64 {
+    local::closing_floor_cos(mesh.face(f), positions, input, cos_floor)
 }
 
 /// Whether face `f` is inverted relative to `input` or a twisted quad at
