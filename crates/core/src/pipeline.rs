@@ -786,8 +786,10 @@ impl Smoothed {
 /// smoothing, labelling, adaptive smoothing with volume restoration and the
 /// quality fixes; for the baselines the baseline smoother (and the quality
 /// fixes). A voxel mesh written as triangles is smoothed as its voxel faces
-/// ([`paired_voxel_faces`]) and measured on its triangles. The report's
-/// hashes are left for the caller, who has the bytes.
+/// ([`paired_voxel_faces`]) and measured on its triangles. A mesh whose
+/// edges are far from unit length in its units is smoothed at unit edges
+/// and scaled back exactly ([`UnitScale`]). The report's hashes are left
+/// for the caller, who has the bytes.
 pub fn run(
     mesh: &Mesh,
     params: &Params,
