@@ -814,18 +814,13 @@ pub fn run_bodies(
 ) -> Result<SmoothOutput, SmoothError> {
     // A mesh in units far from its edges' is smoothed at unit edges and
     // scaled back ([`UnitScale`]): the same bits as in any ordinary unit.
-    let Some(unit) = UnitScale::of(mesh) else {
-        return run_inner(mesh, bodies, params, progress, cancel, Call::Whole);
-    };
-    let mut out = run_inner(
-        &unit.apply(mesh),
-        bodies,
-        params,
-        progress,
-        cancel,
-        Call::Whole,
-    )?;
-    out.rescale(unit.inverse());
+    let unit = UnitScale::of(mesh);
+    let scaled = unit.map(|u| u.apply(mesh));
+    let mesh = scaled.as_ref().unwrap_or(mesh);
+    let mut out = run_inner(mesh, bodies, params, progress, cancel, Call::Whole)?;
+    if let Some(u) = unit {
+        out.rescale(u.inverse());
+    }
     Ok(out)
 }
 
@@ -1388,12 +1383,13 @@ fn final_warnings(params: &Params, report: &mut QualityReport, volume_warned: bo
 pub fn measure(mesh: &Mesh, params: &Params) -> QualityReport {
     // Measured at unit edges when the units are extreme, as [`run_bodies`]
     // smooths.
-    if let Some(unit) = UnitScale::of(mesh) {
-        let mut report = measure_in_units(&unit.apply(mesh), params);
-        report.rescale(unit.inverse());
-        return report;
+    let unit = UnitScale::of(mesh);
+    let scaled = unit.map(|u| u.apply(mesh));
+    let mut report = measure_in_units(scaled.as_ref().unwrap_or(mesh), params);
+    if let Some(u) = unit {
+        report.rescale(u.inverse());
     }
-    measure_in_units(mesh, params)
+    report
 }
 
 /// [`measure`] in the mesh's own units.

@@ -235,10 +235,9 @@ pub(crate) fn closing_floor_cos(
     if now <= cos_guard {
         return cos_guard;
     }
-    match input_sliver_floor(max_split_cos(face, input), cos_guard) {
-        1.0 => now,
-        held => now.max(held),
-    }
+    let held = input_sliver_floor(max_split_cos(face, input), cos_guard);
+    // 1 (no floor): the input had the face sound, and it closes no further.
+    if held < 1.0 { now.max(held) } else { now }
 }
 
 /// A move may not open a quad's split corner beyond this angle (cosine of
