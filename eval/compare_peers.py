@@ -13,6 +13,8 @@ vertices). `--sweep` runs each peer over iteration counts and strengths and
 prints the best truth RMS any setting reaches: the bar meshsmooth is held to
 (the issue's measure, over the vertices), and the best truth surface RMS
 (over the whole surface, faces included).
+`--navis` adds the four hemibrain neurons that `fetch_navis.py` fetches
+(no truth; no setting was tuned on them).
 `--triangles` gives every tool the quad meshes as triangles (each quad split
 along its first diagonal), as a voxel mesh arrives in STL or glTF.
 """
@@ -44,6 +46,13 @@ MESHES = {
     "brain_2mm_marching_cubes": ("mni152_brainmask_2mm_marchingcubes.obj", None, None),
     "neuron_722817260": ("hemibrain_neuron_722817260.obj", None, None),
     "molecule_2jho": ("gamer_2jho.obj", None, None),
+}
+# name: mesh file in the `--navis` folder (`fetch_navis.py`).
+NAVIS_NEURONS = {
+    "neuron_1734350788": "1734350788.obj",
+    "neuron_1734350908": "1734350908.obj",
+    "neuron_754534424": "754534424.obj",
+    "neuron_754538881": "754538881.obj",
 }
 
 
@@ -187,15 +196,24 @@ def main():
     ap.add_argument("--sweep", action="store_true", help="also sweep the peers' settings")
     ap.add_argument("--json", help="write all rows to this file")
     ap.add_argument(
+        "--navis",
+        nargs="?",
+        const=str(ROOT / "eval" / ".navis"),
+        help="also the four hemibrain neurons fetched by fetch_navis.py (into this folder)",
+    )
+    ap.add_argument(
         "--triangles",
         action="store_true",
         help="split every quad along its first diagonal first, as STL and glTF write a voxel mesh",
     )
     args = ap.parse_args()
     rows = []
-    names = [n for n in MESHES if not args.only or n in args.only.split(",")]
+    meshes = dict(MESHES)
+    if args.navis:
+        meshes.update({n: (os.path.join(args.navis, f), None, None) for n, f in NAVIS_NEURONS.items()})
+    names = [n for n in meshes if not args.only or n in args.only.split(",")]
     for name in names:
-        path, prob, margin = MESHES[name]
+        path, prob, margin = meshes[name]
         verts, faces = mm.read_obj(os.path.join(args.data, path))
         if args.triangles:
             faces = [list(t) for t in mm.triangles(faces)]
