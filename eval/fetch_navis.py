@@ -16,12 +16,11 @@ The meshes are data for measuring, not part of the repository
 from __future__ import annotations
 
 import argparse
-import hashlib
-import subprocess
 import sys
-import tempfile
-import zipfile
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import wheel_data  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 WHEEL = "navis==1.12.0"
@@ -39,21 +38,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--dest", default=str(ROOT / "eval" / ".navis"))
     args = ap.parse_args()
-    dest = Path(args.dest)
-    dest.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory() as tmp:
-        subprocess.run(
-            [sys.executable, "-m", "pip", "download", WHEEL, "--no-deps", "--quiet", "-d", tmp], check=True
-        )
-        (wheel,) = Path(tmp).glob("navis-*.whl")
-        with zipfile.ZipFile(wheel) as z:
-            for name, sha in MESHES.items():
-                data = z.read(f"navis/data/obj/{name}")
-                digest = hashlib.sha256(data).hexdigest()
-                if digest != sha:
-                    sys.exit(f"{name}: sha256 {digest}, expected {sha}")
-                (dest / name).write_bytes(data)
-                print(f"{dest / name}  sha256 {digest}")
+    wheel_data.fetch(WHEEL, "navis/data/obj", MESHES, Path(args.dest))
 
 
 if __name__ == "__main__":
