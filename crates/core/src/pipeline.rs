@@ -1212,8 +1212,11 @@ fn report_wang_yu(run: &Run, report: &mut QualityReport, r: WangYuRun) -> Smooth
 
 /// The quality fixes (paper section 2.4) on `positions`, then, after a
 /// Wang-Yu run that restored the volume and when a fix moved a vertex, a
-/// second small restoration kept only if it folds or twists no face.
-/// Whether any vertex moved.
+/// second small restoration kept only if it folds or twists no face and
+/// closes no face the fixes left sound below the sharp-angle threshold;
+/// where no such restoration is found, one that closes no face below the
+/// sliver floor instead (the volume is a promise, an angle between the
+/// floor and the threshold is not a defect). Whether any vertex moved.
 fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport) -> bool {
     let Run {
         mesh, topo, params, ..
@@ -1240,15 +1243,27 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
         && let Some(parts) = run.volume_parts
         && summary.volume_offset != 0.0
     {
-        summary.volume_offset += restore_where_safe(
-            mesh,
-            topo,
-            parts,
-            positions,
-            run.movable,
-            run.quality_bound,
-            SLIVER_FRACTION * params.quality.sharp_angle_deg,
-        );
+        let threshold = params.quality.sharp_angle_deg;
+        let sliver_deg = SLIVER_FRACTION * threshold;
+        let restore = |positions: &mut [DVec3], keep_deg| {
+            restore_where_safe(
+                mesh,
+                topo,
+                parts,
+                positions,
+                run.movable,
+                run.quality_bound,
+                Floors {
+                    keep_deg,
+                    sliver_deg,
+                },
+            )
+        };
+        let mut offset = restore(positions, threshold);
+        if offset == 0.0 {
+            offset = restore(positions, sliver_deg);
+        }
+        summary.volume_offset += offset;
     }
     run.quality_fidelity.apply(positions);
     run.progress.update(Stage::Quality, 1.0);
@@ -1258,14 +1273,28 @@ fn quality_stage(run: &Run, positions: &mut [DVec3], report: &mut QualityReport)
 /// Rounds of the volume restoration after the quality fixes
 /// ([`restore_where_safe`]): each round leaves out the vertices the
 /// previous round's offset could not move; a few rounds reach the faces
-/// around the first ones left out.
-const REOFFSET_ROUNDS: usize = 4;
+/// around the first ones left out. Held at the sharp-angle threshold, the
+/// offset meets a face the fixes opened just to the threshold wherever it
+/// turns: on the hemibrain neurons four rounds left two in five without a
+/// restoration so held, eight none (`docs/tuning.md`).
+const REOFFSET_ROUNDS: usize = 8;
+
+/// The angles the last volume restoration keeps ([`restore_where_safe`]),
+/// in degrees: a face at or above `keep_deg` stays at or above it, a face
+/// sharper than that no sharper than `sliver_deg` (the sliver floor, at
+/// most `keep_deg`) or than [`closing_floor_cos`] holds it.
+#[derive(Debug, Clone, Copy)]
+struct Floors {
+    keep_deg: f64,
+    sliver_deg: f64,
+}
 
 /// Restores each part's input volume after the quality fixes by an offset
 /// of at most [`MAX_VOLUME_REOFFSET`] of the mean edge length, over the
 /// movable vertices whose move folds or twists no face that was sound,
-/// closes no face's angle below `sliver_deg`, nor a face already sharper
-/// below where the sharp-angle fix would hold it ([`closing_floor_cos`]:
+/// closes no face at or above `floors.keep_deg` below it, nor a face
+/// already sharper below the sliver floor or, sharper still, below where
+/// the sharp-angle fix would hold it ([`closing_floor_cos`]:
 /// what the sliver fix opened stays open, and a needle of the input that
 /// the fixes held at half its angle closes no more), and keeps them
 /// within the quality bound: a round that would fold or close a face
@@ -1281,10 +1310,11 @@ fn restore_where_safe(
     positions: &mut [DVec3],
     movable: &[bool],
     quality_bound: Option<&FidelityBound>,
-    sliver_deg: f64,
+    floors: Floors,
 ) -> f64 {
     let input = mesh.positions();
-    let cos_floor = sliver_deg.to_radians().cos();
+    let cos_keep = floors.keep_deg.to_radians().cos();
+    let cos_sliver = floors.sliver_deg.to_radians().cos();
     let sound: Vec<bool> = (0..mesh.num_faces())
         .into_par_iter()
         .with_min_len(4096)
@@ -1294,7 +1324,7 @@ fn restore_where_safe(
     let floor: Vec<f64> = (0..mesh.num_faces())
         .into_par_iter()
         .with_min_len(4096)
-        .map(|f| closing_floor_cos(mesh, f, positions, input, cos_floor))
+        .map(|f| closing_floor_cos(mesh, f, positions, input, cos_keep, cos_sliver))
         .collect();
     let max_offset = MAX_VOLUME_REOFFSET * mean_edge_length(mesh, positions);
     let mut movable = movable.to_vec();
@@ -1688,6 +1718,45 @@ mod tests {
         (mesh, topo, movable, parts, shrunk)
     }
 
+    /// The same angle kept and as the sliver floor.
+    fn at(deg: f64) -> Floors {
+        Floors {
+            keep_deg: deg,
+            sliver_deg: deg,
+        }
+    }
+
+    #[test]
+    fn the_last_restoration_keeps_faces_at_the_threshold_above_a_lower_sliver_floor() {
+        // As below, with the sliver floor at 0: a face at or above the
+        // angle kept stays there all the same.
+        let (mesh, topo, movable, parts, shrunk) = shrunk_voxel_cube();
+        let keep: f64 = 44.9;
+        let closed = |p: &[DVec3]| {
+            (0..mesh.num_faces())
+                .filter(|&f| has_sliver_angle(&mesh, f, p, keep.to_radians().cos()))
+                .count()
+        };
+        let mut unguarded = shrunk.clone();
+        restore_where_safe(
+            &mesh,
+            &topo,
+            &parts,
+            &mut unguarded,
+            &movable,
+            None,
+            at(0.0),
+        );
+        assert!(closed(&unguarded) > 0, "the fixture closes faces");
+        let mut p = shrunk.clone();
+        let floors = Floors {
+            keep_deg: keep,
+            sliver_deg: 0.0,
+        };
+        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, floors);
+        assert_eq!(closed(&p), 0);
+    }
+
     #[test]
     fn the_last_restoration_closes_no_face_below_the_sliver_floor() {
         // The square faces' split triangles have 45 degree corners, and
@@ -1703,10 +1772,18 @@ mod tests {
         };
         assert_eq!(closed(&shrunk), 0);
         let mut unguarded = shrunk.clone();
-        restore_where_safe(&mesh, &topo, &parts, &mut unguarded, &movable, None, 0.0);
+        restore_where_safe(
+            &mesh,
+            &topo,
+            &parts,
+            &mut unguarded,
+            &movable,
+            None,
+            at(0.0),
+        );
         assert!(closed(&unguarded) > 0, "the fixture closes faces");
         let mut p = shrunk.clone();
-        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, floor);
+        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, at(floor));
         assert_eq!(closed(&p), 0);
     }
 
@@ -1725,10 +1802,18 @@ mod tests {
                 .count()
         };
         let mut unguarded = shrunk.clone();
-        restore_where_safe(&mesh, &topo, &parts, &mut unguarded, &movable, None, 0.0);
+        restore_where_safe(
+            &mesh,
+            &topo,
+            &parts,
+            &mut unguarded,
+            &movable,
+            None,
+            at(0.0),
+        );
         assert!(closed(&unguarded) > 0, "the fixture closes faces");
         let mut p = shrunk.clone();
-        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, 46.0);
+        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, at(46.0));
         assert_eq!(closed(&p), 0);
     }
 
@@ -1741,7 +1826,7 @@ mod tests {
 
         // Free to move: the volume comes back.
         let mut p = shrunk.clone();
-        let offset = restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, 10.0);
+        let offset = restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, at(10.0));
         assert!(offset > 0.0);
         assert!((volume(&p) - target).abs() < 1e-6 * target);
 
@@ -1754,7 +1839,15 @@ mod tests {
         let mut p = shrunk.clone();
         p[corner] = input[corner] - DVec3::splat(0.0999);
         let before = p.clone();
-        let offset = restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, Some(&bound), 10.0);
+        let offset = restore_where_safe(
+            &mesh,
+            &topo,
+            &parts,
+            &mut p,
+            &movable,
+            Some(&bound),
+            at(10.0),
+        );
         assert!(offset > 0.0);
         assert_eq!(p[corner], before[corner]);
         assert!((volume(&p) - target).abs() < 1e-6 * target);
@@ -1765,7 +1858,15 @@ mod tests {
         let mut p = shrunk.clone();
         let before = p.clone();
         assert_eq!(
-            restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, Some(&bound), 10.0),
+            restore_where_safe(
+                &mesh,
+                &topo,
+                &parts,
+                &mut p,
+                &movable,
+                Some(&bound),
+                at(10.0)
+            ),
             0.0
         );
         assert_eq!(p, before);

@@ -208,19 +208,28 @@ pub fn has_sliver_angle(mesh: &Mesh, f: usize, positions: &[DVec3], cos_floor: f
 
 /// The cosine of the smallest angle a move made for something other than
 /// the angles (the volume restoration's last offset) may leave face `f`,
-/// now at `positions`, with `input` the input positions and `cos_floor`
-/// the sliver floor's cosine: the floor for a face above it; a face
-/// already sharper closes no further, but for a sliver of the input, which
-/// may close as far as the sharp-angle fix lets it (half its input angle,
-/// [`SLIVER_FRACTION`]). -1 (no floor) for a face with a repeated corner.
+/// now at `positions`, with `input` the input positions, `cos_keep` the
+/// cosine of an angle a face at or above it keeps (at most the floor's
+/// angle: the floor itself, or the sharp-angle threshold so that the move
+/// undoes none of what the fix opened) and `cos_floor` the sliver floor's
+/// cosine: `cos_keep` for a face at or above it; the floor for a face
+/// above the floor; a face already sharper closes no further, but for a
+/// sliver of the input, which may close as far as the sharp-angle fix lets
+/// it (half its input angle, [`SLIVER_FRACTION`]). -1 (no floor) for a
+/// face with a repeated corner.
 pub fn closing_floor_cos(
     mesh: &Mesh,
     f: usize,
     positions: &[DVec3],
     input: &[DVec3],
+    cos_keep: f64,
     cos_floor: f64,
 ) -> f64 {
-    local::closing_floor_cos(mesh.face(f), positions, input, cos_floor)
+    let face = mesh.face(f);
+    if !local::has_repeated_corner(face) && local::max_split_cos(face, positions) <= cos_keep {
+        return cos_keep;
+    }
+    local::closing_floor_cos(face, positions, input, cos_floor)
 }
 
 /// Whether face `f` is inverted relative to `input` or a twisted quad at
