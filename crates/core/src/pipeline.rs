@@ -1721,22 +1721,76 @@ mod tests {
     }
 
     /// A cube of 4 x 4 x 4 voxels, its topology, movable vertices and
-    /// volume parts, and its positions shrunk by 3% about its centre.
-    fn shrunk_voxel_cube() -> (Mesh, Topology, Vec<bool>, VolumeParts, Vec<DVec3>) {
-        let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [6, 6, 6], |i, j, k| {
-            (1..5).contains(&i) && (1..5).contains(&j) && (1..5).contains(&k)
-        });
-        let mesh = voxel_boundary_mesh(&mask);
-        let topo = Topology::build(&mesh);
-        let movable = movable_mask(&topo, BoundaryRule::Fixed);
-        let parts = VolumeParts::new(&mesh, &topo, None);
-        let centre = DVec3::splat(3.0);
-        let shrunk = mesh
-            .positions()
-            .iter()
-            .map(|&p| centre + 0.97 * (p - centre))
-            .collect();
-        (mesh, topo, movable, parts, shrunk)
+    /// volume parts, and its positions shrunk by 3% about its centre: the
+    /// restorations' fixture.
+    struct ShrunkCube {
+        mesh: Mesh,
+        topo: Topology,
+        movable: Vec<bool>,
+        parts: VolumeParts,
+        shrunk: Vec<DVec3>,
+    }
+
+    impl ShrunkCube {
+        fn new() -> Self {
+            let mask = VoxelMask::from_fn(glam::IVec3::ZERO, [6, 6, 6], |i, j, k| {
+                (1..5).contains(&i) && (1..5).contains(&j) && (1..5).contains(&k)
+            });
+            let mesh = voxel_boundary_mesh(&mask);
+            let topo = Topology::build(&mesh);
+            let movable = movable_mask(&topo, BoundaryRule::Fixed);
+            let parts = VolumeParts::new(&mesh, &topo, None);
+            let centre = DVec3::splat(3.0);
+            let shrunk = mesh
+                .positions()
+                .iter()
+                .map(|&p| centre + 0.97 * (p - centre))
+                .collect();
+            ShrunkCube {
+                mesh,
+                topo,
+                movable,
+                parts,
+                shrunk,
+            }
+        }
+
+        /// [`restore_where_safe`] from `start`: the positions and the offset.
+        fn restored_from(
+            &self,
+            start: &[DVec3],
+            bound: Option<&FidelityBound>,
+            floors: Floors,
+        ) -> (Vec<DVec3>, f64) {
+            let mut p = start.to_vec();
+            let offset = restore_where_safe(
+                &self.mesh,
+                &self.topo,
+                &self.parts,
+                &mut p,
+                &self.movable,
+                bound,
+                floors,
+            );
+            (p, offset)
+        }
+
+        /// The same from the shrunk positions, with no bound.
+        fn restored(&self, floors: Floors) -> (Vec<DVec3>, f64) {
+            self.restored_from(&self.shrunk, None, floors)
+        }
+
+        /// Faces with a split-triangle angle whose cosine is above `cos`.
+        fn sharper_than(&self, p: &[DVec3], cos: f64) -> usize {
+            (0..self.mesh.num_faces())
+                .filter(|&f| has_sliver_angle(&self.mesh, f, p, cos))
+                .count()
+        }
+
+        fn volume_restored(&self, p: &[DVec3]) -> bool {
+            let target = self.mesh.signed_volume();
+            (signed_volume(&self.mesh, p) - target).abs() < 1e-6 * target
+        }
     }
 
     /// The same angle kept and as the sliver floor.
@@ -1751,31 +1805,18 @@ mod tests {
     fn the_last_restoration_keeps_faces_at_the_threshold_above_a_lower_sliver_floor() {
         // As below, with the sliver floor at 0: a face at or above the
         // angle kept stays there all the same.
-        let (mesh, topo, movable, parts, shrunk) = shrunk_voxel_cube();
-        let keep: f64 = 44.9;
-        let closed = |p: &[DVec3]| {
-            (0..mesh.num_faces())
-                .filter(|&f| has_sliver_angle(&mesh, f, p, keep.to_radians().cos()))
-                .count()
-        };
-        let mut unguarded = shrunk.clone();
-        restore_where_safe(
-            &mesh,
-            &topo,
-            &parts,
-            &mut unguarded,
-            &movable,
-            None,
-            at(0.0),
+        let cube = ShrunkCube::new();
+        let keep = 44.9f64.to_radians().cos();
+        let (unguarded, _) = cube.restored(at(0.0));
+        assert!(
+            cube.sharper_than(&unguarded, keep) > 0,
+            "the fixture closes faces"
         );
-        assert!(closed(&unguarded) > 0, "the fixture closes faces");
-        let mut p = shrunk.clone();
-        let floors = Floors {
-            keep_deg: keep,
+        let (p, _) = cube.restored(Floors {
+            keep_deg: 44.9,
             sliver_deg: 0.0,
-        };
-        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, floors);
-        assert_eq!(closed(&p), 0);
+        });
+        assert_eq!(cube.sharper_than(&p, keep), 0);
     }
 
     #[test]
@@ -1783,25 +1824,25 @@ mod tests {
         // Held just under the cube's 45 degree corners no offset restores
         // the volume (the fixture above closes some wherever it turns);
         // held at a sliver floor of 10 one does.
-        let (mesh, topo, movable, parts, shrunk) = shrunk_voxel_cube();
-        let mut strict = shrunk.clone();
-        assert_eq!(
-            restore_where_safe(&mesh, &topo, &parts, &mut strict, &movable, None, at(44.9)),
-            0.0
-        );
-        let mut p = shrunk.clone();
+        let cube = ShrunkCube::new();
+        assert_eq!(cube.restored(at(44.9)).1, 0.0);
+        let mut p = cube.shrunk.clone();
         let floors = Floors {
             keep_deg: 44.9,
             sliver_deg: 10.0,
         };
-        let offset = restore_after_fixes(&mesh, &topo, &parts, &mut p, &movable, None, floors);
+        let offset = restore_after_fixes(
+            &cube.mesh,
+            &cube.topo,
+            &cube.parts,
+            &mut p,
+            &cube.movable,
+            None,
+            floors,
+        );
         assert!(offset > 0.0);
-        let target = mesh.signed_volume();
-        assert!((signed_volume(&mesh, &p) - target).abs() < 1e-6 * target);
-        let sharper_than_the_floor = (0..mesh.num_faces())
-            .filter(|&f| has_sliver_angle(&mesh, f, &p, 10f64.to_radians().cos()))
-            .count();
-        assert_eq!(sharper_than_the_floor, 0);
+        assert!(cube.volume_restored(&p));
+        assert_eq!(cube.sharper_than(&p, 10f64.to_radians().cos()), 0);
     }
 
     #[test]
@@ -1810,28 +1851,17 @@ mod tests {
         // offsetting the vertices along their normals (diagonal at the
         // cube's edges and corners) skews the faces there, closing some of
         // those corners below a floor just under 45.
-        let (mesh, topo, movable, parts, shrunk) = shrunk_voxel_cube();
+        let cube = ShrunkCube::new();
         let floor: f64 = 44.9;
-        let closed = |p: &[DVec3]| {
-            (0..mesh.num_faces())
-                .filter(|&f| has_sliver_angle(&mesh, f, p, floor.to_radians().cos()))
-                .count()
-        };
-        assert_eq!(closed(&shrunk), 0);
-        let mut unguarded = shrunk.clone();
-        restore_where_safe(
-            &mesh,
-            &topo,
-            &parts,
-            &mut unguarded,
-            &movable,
-            None,
-            at(0.0),
+        let cos = floor.to_radians().cos();
+        assert_eq!(cube.sharper_than(&cube.shrunk, cos), 0);
+        let (unguarded, _) = cube.restored(at(0.0));
+        assert!(
+            cube.sharper_than(&unguarded, cos) > 0,
+            "the fixture closes faces"
         );
-        assert!(closed(&unguarded) > 0, "the fixture closes faces");
-        let mut p = shrunk.clone();
-        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, at(floor));
-        assert_eq!(closed(&p), 0);
+        let (p, _) = cube.restored(at(floor));
+        assert_eq!(cube.sharper_than(&p, cos), 0);
     }
 
     #[test]
@@ -1841,82 +1871,47 @@ mod tests {
         // under the sliver floor: the offset may close them only as far as
         // the sharp-angle fix would, to twice their angle less the floor
         // (44 degrees).
-        let (mesh, topo, movable, parts, shrunk) = shrunk_voxel_cube();
+        let cube = ShrunkCube::new();
         let held = 44.0f64.to_radians().cos() + 1e-12;
-        let closed = |p: &[DVec3]| {
-            (0..mesh.num_faces())
-                .filter(|&f| has_sliver_angle(&mesh, f, p, held))
-                .count()
-        };
-        let mut unguarded = shrunk.clone();
-        restore_where_safe(
-            &mesh,
-            &topo,
-            &parts,
-            &mut unguarded,
-            &movable,
-            None,
-            at(0.0),
+        let (unguarded, _) = cube.restored(at(0.0));
+        assert!(
+            cube.sharper_than(&unguarded, held) > 0,
+            "the fixture closes faces"
         );
-        assert!(closed(&unguarded) > 0, "the fixture closes faces");
-        let mut p = shrunk.clone();
-        restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, at(46.0));
-        assert_eq!(closed(&p), 0);
+        let (p, _) = cube.restored(at(46.0));
+        assert_eq!(cube.sharper_than(&p, held), 0);
     }
 
     #[test]
     fn the_last_restoration_holds_back_what_it_cannot_move() {
-        let (mesh, topo, movable, parts, shrunk) = shrunk_voxel_cube();
+        let cube = ShrunkCube::new();
+        let (mesh, topo) = (&cube.mesh, &cube.topo);
         let input = mesh.positions();
-        let target = mesh.signed_volume();
-        let volume = |p: &[DVec3]| signed_volume(&mesh, p);
 
         // Free to move: the volume comes back.
-        let mut p = shrunk.clone();
-        let offset = restore_where_safe(&mesh, &topo, &parts, &mut p, &movable, None, at(10.0));
+        let (p, offset) = cube.restored(at(10.0));
         assert!(offset > 0.0);
-        assert!((volume(&p) - target).abs() < 1e-6 * target);
+        assert!(cube.volume_restored(&p));
 
         // A corner already at the outer edge of its bound (a tenth of an
         // edge) stays; the others make up for it.
-        let bound = FidelityBound::new(&mesh, &topo, 0.1);
+        let bound = FidelityBound::new(mesh, topo, 0.1);
         let corner = (0..input.len())
             .find(|&v| input[v] == DVec3::splat(1.0))
             .unwrap();
-        let mut p = shrunk.clone();
-        p[corner] = input[corner] - DVec3::splat(0.0999);
-        let before = p.clone();
-        let offset = restore_where_safe(
-            &mesh,
-            &topo,
-            &parts,
-            &mut p,
-            &movable,
-            Some(&bound),
-            at(10.0),
-        );
+        let mut start = cube.shrunk.clone();
+        start[corner] = input[corner] - DVec3::splat(0.0999);
+        let (p, offset) = cube.restored_from(&start, Some(&bound), at(10.0));
         assert!(offset > 0.0);
-        assert_eq!(p[corner], before[corner]);
-        assert!((volume(&p) - target).abs() < 1e-6 * target);
+        assert_eq!(p[corner], start[corner]);
+        assert!(cube.volume_restored(&p));
         assert!((0..p.len()).all(|v| bound.allows(v, input[v], p[v])));
 
         // Every vertex beyond its bound: nothing moves.
-        let bound = FidelityBound::new(&mesh, &topo, 0.01);
-        let mut p = shrunk.clone();
-        let before = p.clone();
-        assert_eq!(
-            restore_where_safe(
-                &mesh,
-                &topo,
-                &parts,
-                &mut p,
-                &movable,
-                Some(&bound),
-                at(10.0)
-            ),
-            0.0
-        );
-        assert_eq!(p, before);
+        let bound = FidelityBound::new(mesh, topo, 0.01);
+        let (p, offset) = cube.restored_from(&cube.shrunk, Some(&bound), at(10.0));
+        assert_eq!(offset, 0.0);
+        assert_eq!(p, cube.shrunk);
     }
 
     /// Asserts that every number of the report `b` is the same entry of

@@ -216,8 +216,10 @@ fn input_sliver_floor(input_cos: f64, cos_guard: f64) -> f64 {
 
 /// The cosine of the smallest angle a move that only trades the angles
 /// for something else (the volume restoration's last offset) may leave
-/// `face`, now at `positions`, with the sliver floor of cosine `cos_guard`:
-/// the floor for a face above it; for a face already sharper, the floor
+/// `face`, now at `positions`, with `cos_keep` the cosine of an angle a
+/// face at or above it keeps (at most the guard's angle) and the sliver
+/// floor of cosine `cos_guard`: `cos_keep` for a face at or above it; the
+/// floor for a face above the floor; for a face already sharper, the floor
 /// the sharp-angle fix holds it to when the input had it sharper too
 /// ([`input_sliver_floor`]), and its own angle where it is sharper still
 /// or the input had it sound. A face with a repeated corner has no angle
@@ -226,12 +228,16 @@ pub(crate) fn closing_floor_cos(
     face: &[u32],
     positions: &[DVec3],
     input: &[DVec3],
+    cos_keep: f64,
     cos_guard: f64,
 ) -> f64 {
     if has_repeated_corner(face) {
         return -1.0;
     }
     let now = max_split_cos(face, positions);
+    if now <= cos_keep {
+        return cos_keep;
+    }
     if now <= cos_guard {
         return cos_guard;
     }

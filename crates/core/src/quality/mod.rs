@@ -225,11 +225,7 @@ pub fn closing_floor_cos(
     cos_keep: f64,
     cos_floor: f64,
 ) -> f64 {
-    let face = mesh.face(f);
-    if !local::has_repeated_corner(face) && local::max_split_cos(face, positions) <= cos_keep {
-        return cos_keep;
-    }
-    local::closing_floor_cos(face, positions, input, cos_floor)
+    local::closing_floor_cos(mesh.face(f), positions, input, cos_keep, cos_floor)
 }
 
 /// Whether face `f` is inverted relative to `input` or a twisted quad at
